@@ -1,0 +1,19 @@
+//! stepbridge logic: every behaviour of the bridge, with no HAL, no RTIC and
+//! no allocation, so the same code runs on the STM32F405 and in `cargo test`.
+//!
+//! Layers (each depends only on the ones above it in this list):
+//! * [`powerstep`] — powerSTEP01 register map, commands, STATUS, units, and
+//!   the daisy-chain owner that schedules every SPI byte.
+//! * `sim` (feature `sim`) — a byte-accurate powerSTEP01 and chain model used
+//!   by host tests and by the QEMU image.
+//!
+//! Later layers (motion, postep, transport, bridge) are listed as missing in
+//! the README until they exist.
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
+#![warn(missing_debug_implementations)]
+
+pub mod powerstep;
+
+#[cfg(feature = "sim")]
+pub mod sim;

@@ -1,0 +1,640 @@
+//! The daisy chain: one owner schedules every byte (AN4290 §2).
+//!
+//! # What this module guarantees
+//!
+//! * **Framing.** Every CS-low window carries exactly one byte per device. The
+//!   first byte clocked out reaches the device farthest from the MCU (device
+//!   N−1), the last byte reaches device 0; received bytes map the same way
+//!   (byte j of a window came from device N−1−j).
+//! * **Synchronous execution.** Given up to [`MAX_COMMANDS`] commands per
+//!   device, the [`Plan`] right-aligns every device's command bytes so that
+//!   the last command of every device completes in the same window: devices
+//!   with less to send get leading NOPs, never trailing ones, so all axes
+//!   start in the same CS rise.
+//! * **No NOP mid-argument.** A device's commands are laid out back to back,
+//!   so no filler byte ever lands inside another command's argument bytes.
+//! * **Responses.** A GetParam/GetStatus response comes out in the windows
+//!   after its command byte, MSB first. A second response-producing command
+//!   for the same device is delayed (NOP padding) until the first response
+//!   has been clocked out completely, because the chip would abandon it.
+//!   Non-response commands (e.g. the argument bytes of Run) overlap a pending
+//!   response freely — that is how position read-back costs no extra window.
+//! * **Recovery.** If the bus fails inside a batch the chain is marked out of
+//!   step; the next call first resynchronises (NOP windows to finish any
+//!   half-sent command, then HardStop to every device so nothing keeps
+//!   moving on stale orders, then GetStatus to clear CMD_ERROR).
+//!
+//! Assumptions: a batch completes every command it starts, and the bus
+//! driver raises CS for ≥ 800 ns (t_disCS) between windows.
+
+use heapless::Vec;
+
+use super::commands::Command;
+use super::registers::Register;
+use super::status::Status;
+
+/// Longest supported chain (SPEC.md: 1 ≤ N ≤ 8).
+pub const MAX_DEVICES: usize = 8;
+/// Commands one device may get in one batch.
+pub const MAX_COMMANDS: usize = 3;
+/// Windows one batch may take (3 commands of 4 bytes plus response padding).
+pub const MAX_WINDOWS: usize = 16;
+
+/// Bytes of one batch, window by window (only the first N of each row are sent).
+pub type Frames = [[u8; MAX_DEVICES]; MAX_WINDOWS];
+
+/// The chip-select/SPI transfer the chain runs on. The firmware implements it
+/// on SPI1 + a CS GPIO; the simulator implements it on a model chain.
+pub trait ChainBus {
+    type Error;
+    /// One CS-low window: shift out `tx` (`tx[0]` first), store what comes
+    /// back in `rx` (same length), then raise CS for at least 800 ns.
+    fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), Self::Error>;
+}
+
+/// Why a batch cannot be scheduled.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ScheduleError {
+    /// Device index ≥ chain length.
+    NoSuchDevice(u8),
+    /// More than [`MAX_COMMANDS`] commands for one device.
+    TooManyCommands,
+    /// The layout would need more than [`MAX_WINDOWS`] windows.
+    TooManyWindows,
+}
+
+/// Why a chain operation failed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ChainError<E> {
+    /// The SPI transfer failed; the chain is marked out of step.
+    Bus(E),
+    Schedule(ScheduleError),
+    /// No chain detected yet (call [`Chain::detect`]).
+    NotDetected,
+    /// The detection pattern never came back: broken wiring or a dead device.
+    NoEcho,
+    /// MISO is wired straight to MOSI: zero devices.
+    Empty,
+}
+
+/// Commands for one batch, per device.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Batch {
+    n: u8,
+    cmds: [Vec<Command, MAX_COMMANDS>; MAX_DEVICES],
+}
+
+impl Batch {
+    /// An empty batch for a chain of `n` devices (clamped to [`MAX_DEVICES`]).
+    pub fn new(n: usize) -> Batch {
+        Batch {
+            n: n.min(MAX_DEVICES) as u8,
+            cmds: Default::default(),
+        }
+    }
+
+    /// The same command for every device.
+    pub fn all(n: usize, cmd: Command) -> Batch {
+        let mut b = Batch::new(n);
+        for list in b.cmds.iter_mut().take(usize::from(b.n)) {
+            // Capacity ≥ 1: cannot fail.
+            let _ = list.push(cmd);
+        }
+        b
+    }
+
+    pub fn len(&self) -> usize {
+        usize::from(self.n)
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.cmds.iter().all(|c| c.is_empty())
+    }
+
+    /// Append a command for `device`.
+    pub fn push(&mut self, device: usize, cmd: Command) -> Result<(), ScheduleError> {
+        if device >= usize::from(self.n) {
+            return Err(ScheduleError::NoSuchDevice(device.min(255) as u8));
+        }
+        self.cmds
+            .get_mut(device)
+            .ok_or(ScheduleError::NoSuchDevice(device.min(255) as u8))?
+            .push(cmd)
+            .map_err(|_| ScheduleError::TooManyCommands)
+    }
+
+    /// Commands queued for `device`.
+    pub fn commands(&self, device: usize) -> &[Command] {
+        self.cmds.get(device).map(|v| v.as_slice()).unwrap_or(&[])
+    }
+
+    pub fn clear(&mut self) {
+        for c in self.cmds.iter_mut() {
+            c.clear();
+        }
+    }
+}
+
+/// Where a response will come out.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct ReadSlot {
+    device: u8,
+    index: u8,
+    first_window: u8,
+    len: u8,
+    command: Command,
+}
+
+/// A scheduled batch: the bytes of every window and where replies come out.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Plan {
+    n: u8,
+    windows: u8,
+    /// Window in which every device's last command completes.
+    sync_window: u8,
+    tx: Frames,
+    reads: Vec<ReadSlot, { MAX_DEVICES * MAX_COMMANDS }>,
+}
+
+/// Lay out one device's commands: (bytes, length of command bytes,
+/// response end exclusive, reads relative to the stream start).
+struct Stream {
+    bytes: [u8; MAX_WINDOWS],
+    len: usize,
+    end: usize,
+    reads: Vec<(u8, u8, u8, Command), MAX_COMMANDS>,
+}
+
+fn lay_out(cmds: &[Command]) -> Result<Stream, ScheduleError> {
+    let mut s = Stream {
+        bytes: [0; MAX_WINDOWS],
+        len: 0,
+        end: 0,
+        reads: Vec::new(),
+    };
+    // Earliest position at which the next response-producing command may go.
+    let mut free_at = 0usize;
+    for (i, cmd) in cmds.iter().enumerate() {
+        let resp = usize::from(cmd.response_len());
+        if resp > 0 && s.len < free_at {
+            s.len = free_at; // NOP padding (bytes are already 0x00)
+        }
+        let enc = cmd.encode();
+        let start = s.len;
+        let stop = start + enc.len();
+        let dst = s
+            .bytes
+            .get_mut(start..stop)
+            .ok_or(ScheduleError::TooManyWindows)?;
+        dst.copy_from_slice(enc.as_slice());
+        s.len = stop;
+        if resp > 0 {
+            free_at = start + resp;
+            s.end = s.end.max(start + 1 + resp);
+            s.reads
+                .push((i as u8, (start + 1) as u8, resp as u8, *cmd))
+                .map_err(|_| ScheduleError::TooManyCommands)?;
+        }
+    }
+    s.end = s.end.max(s.len);
+    Ok(s)
+}
+
+impl Plan {
+    /// Schedule `batch` (see the module docs for the rules).
+    pub fn new(batch: &Batch) -> Result<Plan, ScheduleError> {
+        let n = usize::from(batch.n);
+        let mut streams: Vec<Stream, MAX_DEVICES> = Vec::new();
+        for d in 0..n {
+            let s = lay_out(batch.commands(d))?;
+            if streams.push(s).is_err() {
+                return Err(ScheduleError::NoSuchDevice(d as u8));
+            }
+        }
+        let sync = streams.iter().map(|s| s.len).max().unwrap_or(0);
+        let windows = streams
+            .iter()
+            .map(|s| sync - s.len + s.end)
+            .max()
+            .unwrap_or(0);
+        if windows > MAX_WINDOWS {
+            return Err(ScheduleError::TooManyWindows);
+        }
+        let mut plan = Plan {
+            n: batch.n,
+            windows: windows as u8,
+            sync_window: sync.saturating_sub(1) as u8,
+            tx: [[0; MAX_DEVICES]; MAX_WINDOWS],
+            reads: Vec::new(),
+        };
+        for (d, s) in streams.iter().enumerate() {
+            let offset = sync - s.len;
+            let slot = n - 1 - d; // position of device d inside a window
+            for (k, b) in s.bytes.iter().take(s.len).enumerate() {
+                if let Some(cell) = plan.tx.get_mut(offset + k).and_then(|w| w.get_mut(slot)) {
+                    *cell = *b;
+                }
+            }
+            for &(index, first, len, command) in s.reads.iter() {
+                let _ = plan.reads.push(ReadSlot {
+                    device: d as u8,
+                    index,
+                    first_window: (offset + usize::from(first)) as u8,
+                    len,
+                    command,
+                });
+            }
+        }
+        Ok(plan)
+    }
+
+    /// Chain length this plan was made for.
+    pub fn devices(&self) -> usize {
+        usize::from(self.n)
+    }
+
+    /// Number of CS windows.
+    pub fn windows(&self) -> usize {
+        usize::from(self.windows)
+    }
+
+    /// Index of the window in which every device's last command completes.
+    pub fn sync_window(&self) -> usize {
+        usize::from(self.sync_window)
+    }
+
+    /// Total bytes clocked (windows × devices).
+    pub fn bytes(&self) -> usize {
+        self.windows() * self.devices()
+    }
+
+    /// The bytes of window `w` (N bytes, first one out first), if it exists.
+    pub fn window(&self, w: usize) -> Option<&[u8]> {
+        if w >= self.windows() {
+            return None;
+        }
+        self.tx.get(w).and_then(|row| row.get(..self.devices()))
+    }
+
+    /// Decode what came back.
+    pub fn decode(&self, rx: &Frames) -> Replies {
+        let mut replies = Replies::default();
+        let n = self.devices();
+        for r in self.reads.iter() {
+            let slot = n - 1 - usize::from(r.device);
+            let mut value = 0u32;
+            for k in 0..usize::from(r.len) {
+                let byte = rx
+                    .get(usize::from(r.first_window) + k)
+                    .and_then(|w| w.get(slot))
+                    .copied()
+                    .unwrap_or(0);
+                value = (value << 8) | u32::from(byte);
+            }
+            let reply = match r.command {
+                Command::GetStatus => Reply::Status(Status(value as u16)),
+                Command::GetParam(reg) => Reply::Param(reg, value & reg.mask()),
+                _ => continue,
+            };
+            if let Some(cell) = replies
+                .items
+                .get_mut(usize::from(r.device))
+                .and_then(|d| d.get_mut(usize::from(r.index)))
+            {
+                *cell = Some(reply);
+            }
+        }
+        replies
+    }
+}
+
+/// A decoded response.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Reply {
+    /// GetStatus (flags were cleared by the read).
+    Status(Status),
+    /// GetParam: raw register value, masked to the register width.
+    Param(Register, u32),
+}
+
+/// All responses of one batch, per device and command index.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Replies {
+    items: [[Option<Reply>; MAX_COMMANDS]; MAX_DEVICES],
+}
+
+impl Replies {
+    /// Reply to the `index`-th command of `device`.
+    pub fn get(&self, device: usize, index: usize) -> Option<Reply> {
+        self.items.get(device)?.get(index).copied().flatten()
+    }
+
+    /// The STATUS read by GetStatus (or GetParam(STATUS)) for `device`.
+    pub fn status(&self, device: usize) -> Option<Status> {
+        self.items
+            .get(device)?
+            .iter()
+            .flatten()
+            .find_map(|r| match r {
+                Reply::Status(s) => Some(*s),
+                Reply::Param(Register::Status, v) => Some(Status(*v as u16)),
+                _ => None,
+            })
+    }
+
+    /// The value read by GetParam(`reg`) for `device`.
+    pub fn param(&self, device: usize, reg: Register) -> Option<u32> {
+        self.items
+            .get(device)?
+            .iter()
+            .flatten()
+            .find_map(|r| match r {
+                Reply::Param(rr, v) if *rr == reg => Some(*v),
+                _ => None,
+            })
+    }
+}
+
+/// Bytes shifted through the chain to measure its length: distinct, and each
+/// a harmless command (GetParam of an existing register) for whichever
+/// device ends up holding it.
+const DETECT_LEN: usize = 2 * MAX_DEVICES;
+const fn detect_pattern() -> [u8; DETECT_LEN] {
+    let mut p = [0u8; DETECT_LEN];
+    let mut i = 0;
+    while i < DETECT_LEN {
+        p[i] = 0x20 | (i as u8 + 1);
+        i += 1;
+    }
+    p
+}
+
+/// Find the chain length from one detection window: the smallest `n` such
+/// that what came back is the pattern delayed by `n` bytes. With distinct
+/// pattern bytes at most one `n` can match.
+pub fn length_from_echo(tx: &[u8], rx: &[u8]) -> Option<usize> {
+    (0..=MAX_DEVICES).find(
+        |&n| match (rx.get(n..), tx.get(..tx.len().saturating_sub(n))) {
+            (Some(a), Some(b)) => !a.is_empty() && a == b,
+            _ => false,
+        },
+    )
+}
+
+/// The one owner of the chain.
+pub struct Chain<B: ChainBus> {
+    bus: B,
+    n: u8,
+    out_of_step: bool,
+}
+
+impl<B: ChainBus> Chain<B> {
+    pub const fn new(bus: B) -> Chain<B> {
+        Chain {
+            bus,
+            n: 0,
+            out_of_step: false,
+        }
+    }
+
+    /// Detected chain length (0 before detection).
+    pub fn len(&self) -> usize {
+        usize::from(self.n)
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+
+    pub fn bus(&self) -> &B {
+        &self.bus
+    }
+
+    pub fn bus_mut(&mut self) -> &mut B {
+        &mut self.bus
+    }
+
+    /// True after a bus failure until the next successful resynchronisation.
+    pub fn out_of_step(&self) -> bool {
+        self.out_of_step
+    }
+
+    /// Measure the chain length: three NOP windows (finish any half-received
+    /// command), then one window of [`DETECT_LEN`] distinct bytes; the offset at
+    /// which they come back is N. The caller should have pulsed STBY/RESET.
+    pub fn detect(&mut self) -> Result<usize, ChainError<B::Error>> {
+        let nops = [0u8; DETECT_LEN];
+        let mut rx = [0u8; DETECT_LEN];
+        for _ in 0..3 {
+            self.bus.window(&nops, &mut rx).map_err(ChainError::Bus)?;
+        }
+        let tx = detect_pattern();
+        self.bus.window(&tx, &mut rx).map_err(ChainError::Bus)?;
+        let n = length_from_echo(&tx, &rx).ok_or(ChainError::NoEcho)?;
+        if n == 0 {
+            return Err(ChainError::Empty);
+        }
+        self.n = n as u8;
+        self.out_of_step = false;
+        Ok(n)
+    }
+
+    /// Clock the windows of a plan made for this chain.
+    pub fn run(&mut self, plan: &Plan) -> Result<Replies, ChainError<B::Error>> {
+        if self.n == 0 {
+            return Err(ChainError::NotDetected);
+        }
+        if plan.devices() != self.len() {
+            return Err(ChainError::Schedule(ScheduleError::NoSuchDevice(plan.n)));
+        }
+        if self.out_of_step {
+            self.resync()?;
+        }
+        let n = self.len();
+        let mut rx: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS];
+        for (tx, rx) in plan.tx.iter().zip(rx.iter_mut()).take(plan.windows()) {
+            let (Some(tx), Some(rx)) = (tx.get(..n), rx.get_mut(..n)) else {
+                break;
+            };
+            if let Err(e) = self.bus.window(tx, rx) {
+                self.out_of_step = true;
+                return Err(ChainError::Bus(e));
+            }
+        }
+        Ok(plan.decode(&rx))
+    }
+
+    /// Schedule and run a batch.
+    pub fn execute(&mut self, batch: &Batch) -> Result<Replies, ChainError<B::Error>> {
+        if self.n == 0 {
+            return Err(ChainError::NotDetected);
+        }
+        if batch.len() != self.len() {
+            return Err(ChainError::Schedule(ScheduleError::NoSuchDevice(batch.n)));
+        }
+        let plan = Plan::new(batch).map_err(ChainError::Schedule)?;
+        self.run(&plan)
+    }
+
+    /// Read STATUS of every device with GetStatus (3 windows; clears latched flags).
+    pub fn poll_status(&mut self) -> Result<Replies, ChainError<B::Error>> {
+        self.execute(&Batch::all(self.len(), Command::GetStatus))
+    }
+
+    /// Bring the chain back in step after a failed transfer (module docs).
+    pub fn resync(&mut self) -> Result<(), ChainError<B::Error>> {
+        let n = self.len();
+        let nops = [0u8; MAX_DEVICES];
+        let mut rx = [0u8; MAX_DEVICES];
+        let (Some(tx), Some(rx)) = (nops.get(..n), rx.get_mut(..n)) else {
+            return Err(ChainError::NotDetected);
+        };
+        for _ in 0..3 {
+            self.bus.window(tx, rx).map_err(ChainError::Bus)?;
+        }
+        self.out_of_step = false;
+        for cmd in [Command::HardStop, Command::GetStatus] {
+            let plan = Plan::new(&Batch::all(n, cmd)).map_err(ChainError::Schedule)?;
+            if let Err(e) = self.run(&plan) {
+                self.out_of_step = true;
+                return Err(e);
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::powerstep::commands::Direction;
+
+    #[test]
+    fn status_poll_of_n_devices_takes_three_windows() {
+        for n in 1..=MAX_DEVICES {
+            let plan = Plan::new(&Batch::all(n, Command::GetStatus)).unwrap();
+            assert_eq!(plan.windows(), 3, "n = {n}");
+            assert_eq!(plan.window(0).unwrap(), &[0xD0; MAX_DEVICES][..n]);
+            assert_eq!(plan.window(1).unwrap(), &[0; MAX_DEVICES][..n]);
+            assert_eq!(plan.window(2).unwrap(), &[0; MAX_DEVICES][..n]);
+            assert_eq!(plan.bytes(), 3 * n);
+        }
+    }
+
+    #[test]
+    fn first_byte_of_a_window_goes_to_the_farthest_device() {
+        let mut b = Batch::new(3);
+        b.push(0, Command::HardStop).unwrap();
+        b.push(2, Command::SoftStop).unwrap();
+        let plan = Plan::new(&b).unwrap();
+        assert_eq!(plan.windows(), 1);
+        assert_eq!(plan.window(0).unwrap(), &[0xB0, 0x00, 0xB8]);
+    }
+
+    #[test]
+    fn shorter_commands_are_right_aligned_with_leading_nops() {
+        let mut b = Batch::new(2);
+        b.push(0, Command::Run(Direction::Forward, 0x01_0203))
+            .unwrap();
+        b.push(1, Command::HardStop).unwrap();
+        let plan = Plan::new(&b).unwrap();
+        assert_eq!(plan.windows(), 4);
+        assert_eq!(plan.sync_window(), 3);
+        // slot 0 = device 1, slot 1 = device 0
+        assert_eq!(plan.window(0).unwrap(), &[0x00, 0x51]);
+        assert_eq!(plan.window(1).unwrap(), &[0x00, 0x01]);
+        assert_eq!(plan.window(2).unwrap(), &[0x00, 0x02]);
+        assert_eq!(plan.window(3).unwrap(), &[0xB8, 0x03]);
+    }
+
+    #[test]
+    fn get_param_response_is_read_after_the_aligned_command() {
+        let mut b = Batch::new(2);
+        b.push(0, Command::Run(Direction::Forward, 5)).unwrap();
+        b.push(1, Command::GetParam(Register::AbsPos)).unwrap();
+        let plan = Plan::new(&b).unwrap();
+        // Run ends in window 3, GetParam is in window 3, its 3 bytes in 4..=6.
+        assert_eq!(plan.windows(), 7);
+        assert_eq!(plan.window(3).unwrap(), &[0x21, 0x05]);
+        let mut rx: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS];
+        rx[4][0] = 0x3F;
+        rx[5][0] = 0xFF;
+        rx[6][0] = 0xFE;
+        let replies = plan.decode(&rx);
+        assert_eq!(replies.param(1, Register::AbsPos), Some(0x3F_FFFE));
+        assert_eq!(replies.param(0, Register::AbsPos), None);
+    }
+
+    #[test]
+    fn read_back_overlaps_run_arguments_in_five_windows() {
+        let mut b = Batch::new(8);
+        for d in 0..8 {
+            b.push(d, Command::GetParam(Register::AbsPos)).unwrap();
+            b.push(d, Command::Run(Direction::Reverse, 1000)).unwrap();
+        }
+        let plan = Plan::new(&b).unwrap();
+        assert_eq!(plan.windows(), 5);
+        assert_eq!(plan.sync_window(), 4);
+    }
+
+    #[test]
+    fn two_responses_for_one_device_are_separated_by_padding() {
+        let mut b = Batch::new(1);
+        b.push(0, Command::GetStatus).unwrap();
+        b.push(0, Command::GetParam(Register::AbsPos)).unwrap();
+        let plan = Plan::new(&b).unwrap();
+        // D0, 00, 21, then 3 response bytes: status out in windows 1..=2,
+        // GetParam in window 2 (after the status LSB went out).
+        assert_eq!(plan.window(0).unwrap(), &[0xD0]);
+        assert_eq!(plan.window(1).unwrap(), &[0x00]);
+        assert_eq!(plan.window(2).unwrap(), &[0x21]);
+        assert_eq!(plan.windows(), 6);
+    }
+
+    #[test]
+    fn too_many_commands_for_a_device_is_an_error() {
+        let mut b = Batch::new(1);
+        for _ in 0..MAX_COMMANDS {
+            b.push(0, Command::Nop).unwrap();
+        }
+        assert_eq!(b.push(0, Command::Nop), Err(ScheduleError::TooManyCommands));
+        assert_eq!(
+            Batch::new(2).push(2, Command::Nop),
+            Err(ScheduleError::NoSuchDevice(2))
+        );
+    }
+
+    #[test]
+    fn echo_offset_gives_the_chain_length() {
+        let tx = detect_pattern();
+        for n in 0..=MAX_DEVICES {
+            let mut rx = [0xAAu8; DETECT_LEN];
+            rx[n..].copy_from_slice(&tx[..DETECT_LEN - n]);
+            assert_eq!(length_from_echo(&tx, &rx), Some(n));
+        }
+    }
+
+    #[test]
+    fn stuck_miso_is_no_echo() {
+        let tx = detect_pattern();
+        assert_eq!(length_from_echo(&tx, &[0xFF; DETECT_LEN]), None);
+        assert_eq!(length_from_echo(&tx, &[0x00; DETECT_LEN]), None);
+    }
+
+    #[test]
+    fn detection_pattern_bytes_are_distinct_get_params() {
+        let p = detect_pattern();
+        for (i, b) in p.iter().enumerate() {
+            assert_eq!(
+                Command::decode(&[*b]),
+                Ok(Command::GetParam(
+                    Register::from_address(i as u8 + 1).unwrap()
+                ))
+            );
+            assert!(!p[..i].contains(b));
+        }
+    }
+}
