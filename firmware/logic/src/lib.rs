@@ -4,6 +4,7 @@
 //! Layers (each depends only on the ones above it in this list):
 //! * [`powerstep`] — powerSTEP01 register map, commands, STATUS, units, and
 //!   the daisy-chain owner that schedules every SPI byte.
+//! * [`motion`] — trapezoidal profile generator (and axis output stage).
 //! * `sim` (feature `sim`) — a byte-accurate powerSTEP01 and chain model used
 //!   by host tests and by the QEMU image.
 //!
@@ -13,6 +14,7 @@
 #![forbid(unsafe_code)]
 #![warn(missing_debug_implementations)]
 
+pub mod motion;
 pub mod powerstep;
 
 #[cfg(feature = "sim")]

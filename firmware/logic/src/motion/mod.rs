@@ -1,0 +1,7 @@
+//! Motion: the trapezoidal profile generator and (later in this layer) the
+//! axis output stage that turns setpoints into chain commands. Knows nothing
+//! of bytes on any bus.
+
+pub mod profile;
+
+pub use profile::{Limits, Mode, Profile};

@@ -1,0 +1,505 @@
+//! Trapezoidal profile generator: the single source of truth for where an
+//! axis should be, tick by tick.
+//!
+//! # What it guarantees
+//!
+//! * **Units.** Positions are logical steps (PoStep60 step mode), speeds are
+//!   steps/s, accelerations steps/s². Internally the position is kept in
+//!   2⁻³³ steps (`i128`) and the velocity in 2⁻³² steps per tick (`i64`), so
+//!   every update is exact integer arithmetic and host and target agree bit for
+//!   bit. The tick period is passed in; the generator never reads a clock.
+//! * **Kinematics.** Each tick the velocity changes linearly from `v` to `v'`
+//!   and the position advances by `(v + v') / 2` — the exact integral of a
+//!   linear ramp, which is what a powerSTEP01 executing `Run` at a matching
+//!   ACC/DEC does between two setpoints.
+//! * **Limits.** `|v'| ≤ max_speed` (quantised down), a speed-up per tick is
+//!   at most `acc` and a slow-down at most `dec` (quantised down). When
+//!   `max_speed` is lowered mid-move the axis slows down at `dec`. A velocity
+//!   never changes sign within one tick: it passes through zero.
+//! * **Exact landing.** In position mode the axis brakes on the discrete
+//!   braking curve, so a move to a target it can still reach ends with the
+//!   position *exactly* on the target and velocity zero, without overshoot.
+//!   A target inside the current braking distance (possible only after a
+//!   retarget) is passed at full `dec` braking and approached from the other
+//!   side — the only physically possible answer.
+//! * **Retarget.** New target, new limits, or a switch between position and
+//!   velocity mode take effect at the next tick, from the current state,
+//!   without a stop.
+//!
+//! The discrete braking distance from velocity `v = m·dec + r` (`0 ≤ r < dec`)
+//! is `D(v) = (m + ½)·v − dec·m(m+1)/2`: `m` full-`dec` ticks and one last
+//! partial tick from `r` to zero. It exceeds the continuous `v²/2dec` by at
+//! most `dec/8`, so move times match the analytic trapezoid within a tick.
+
+/// Velocity and acceleration fraction bits (2⁻³² steps per tick).
+const VEL_FRAC: u32 = 32;
+/// Position fraction bits (2⁻³³ steps: half a velocity quantum, so `(v+v')/2` is exact).
+const POS_FRAC: u32 = 33;
+const ONE_STEP: i128 = 1 << POS_FRAC;
+
+/// Motion limits in logical steps.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Limits {
+    /// Steps/s (0 is treated as 1).
+    pub max_speed: u32,
+    /// Steps/s² (0 is treated as 1).
+    pub acc: u32,
+    /// Steps/s² (0 is treated as 1).
+    pub dec: u32,
+}
+
+/// What the generator is doing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Mode {
+    /// At rest on an integer step, nothing to do.
+    Hold,
+    /// Moving to (or sitting on) a target position, in steps.
+    Position(i64),
+    /// Running at a signed target speed (internal units, 2⁻³² steps/tick).
+    Velocity(i64),
+}
+
+/// The trapezoidal profile generator of one axis.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Profile {
+    tick_us: u32,
+    /// 2⁻³³ steps.
+    pos: i128,
+    /// 2⁻³² steps/tick, signed.
+    vel: i64,
+    mode: Mode,
+    limits: Limits,
+    vmax: i64,
+    acc: i64,
+    dec: i64,
+}
+
+/// Steps/s → 2⁻³² steps/tick, rounded down (never above the limit).
+pub const fn speed_to_internal(steps_per_s: u32, tick_us: u32) -> i64 {
+    (((steps_per_s as u128) * (tick_us as u128)) << VEL_FRAC) as i64 / 1_000_000
+}
+
+/// Steps/s² → 2⁻³² steps/tick², rounded down, at least one quantum.
+pub const fn acc_to_internal(steps_per_s2: u32, tick_us: u32) -> i64 {
+    let t = tick_us as u128;
+    let q = (((steps_per_s2 as u128) * t * t) << VEL_FRAC) / 1_000_000_000_000;
+    if q == 0 {
+        1
+    } else {
+        q as i64
+    }
+}
+
+/// 2⁻³² steps/tick → steps/s (rounded toward zero).
+pub const fn speed_from_internal(v: i64, tick_us: u32) -> i64 {
+    if tick_us == 0 {
+        return 0;
+    }
+    (((v as i128) * 1_000_000) / (tick_us as i128) >> VEL_FRAC) as i64
+}
+
+/// Twice the discrete braking distance from speed `v ≥ 0` at deceleration
+/// `dec > 0`, in 2⁻³³ steps: `(2m+1)·v − dec·m(m+1)` with `m = ⌊v/dec⌋`.
+pub fn braking_distance(v: i64, dec: i64) -> i128 {
+    if v <= 0 || dec <= 0 {
+        return 0;
+    }
+    let m = i128::from(v / dec);
+    (2 * m + 1) * i128::from(v) - i128::from(dec) * m * (m + 1)
+}
+
+/// Position travelled (2⁻³³ steps) if the next velocity is `w` after `v`, then
+/// braking to zero: `v + w + 2·D(w)`. Increasing in `w`.
+fn reach(v: i64, w: i64, dec: i64) -> i128 {
+    i128::from(v) + i128::from(w) + braking_distance(w, dec)
+}
+
+impl Profile {
+    /// A generator at rest at position 0, ticking every `tick_us` µs.
+    pub fn new(tick_us: u32, limits: Limits) -> Profile {
+        let mut p = Profile {
+            tick_us: tick_us.max(1),
+            pos: 0,
+            vel: 0,
+            mode: Mode::Hold,
+            limits,
+            vmax: 1,
+            acc: 1,
+            dec: 1,
+        };
+        p.set_limits(limits);
+        p
+    }
+
+    pub fn tick_us(&self) -> u32 {
+        self.tick_us
+    }
+
+    /// New max speed / acceleration / deceleration; effective at the next tick.
+    pub fn set_limits(&mut self, limits: Limits) {
+        self.limits = limits;
+        self.vmax = speed_to_internal(limits.max_speed.max(1), self.tick_us).max(1);
+        self.acc = acc_to_internal(limits.acc.max(1), self.tick_us);
+        self.dec = acc_to_internal(limits.dec.max(1), self.tick_us);
+    }
+
+    pub fn limits(&self) -> Limits {
+        self.limits
+    }
+
+    pub fn mode(&self) -> Mode {
+        self.mode
+    }
+
+    /// Move to `target` steps (position mode), from whatever the axis is doing.
+    pub fn move_to(&mut self, target: i64) {
+        self.mode = Mode::Position(target);
+    }
+
+    /// Run at a signed speed in steps/s (velocity mode), clamped to max speed
+    /// at every tick (so lowering max speed slows a running axis down).
+    pub fn run_at(&mut self, steps_per_s: i32) {
+        let v = speed_to_internal(steps_per_s.unsigned_abs(), self.tick_us);
+        self.mode = Mode::Velocity(if steps_per_s < 0 { -v } else { v });
+    }
+
+    /// Stop at once (no ramp) on the nearest whole step.
+    pub fn stop_now(&mut self) {
+        self.vel = 0;
+        let whole = self.position_round();
+        self.pos = i128::from(whole) << POS_FRAC;
+        self.mode = Mode::Hold;
+    }
+
+    /// Decelerate with `dec` to a stop on the first whole step at or beyond
+    /// the braking point.
+    pub fn soft_stop(&mut self) {
+        if self.vel == 0 {
+            self.mode = Mode::Position(self.position_toward(self.pos, 0));
+            return;
+        }
+        let d = braking_distance(self.vel.abs(), self.dec);
+        let stop = if self.vel > 0 {
+            self.pos + d
+        } else {
+            self.pos - d
+        };
+        self.mode = Mode::Position(self.position_toward(stop, self.vel));
+    }
+
+    /// Define the current position as `steps` (the axis must be at rest; a
+    /// moving axis is stopped first, as the PoStep60 does for Set zero).
+    pub fn set_position(&mut self, steps: i64) {
+        self.vel = 0;
+        self.pos = i128::from(steps) << POS_FRAC;
+        self.mode = Mode::Hold;
+    }
+
+    /// Position, rounded to the nearest step (halves away from zero).
+    pub fn position_round(&self) -> i64 {
+        let half = ONE_STEP / 2;
+        let p = if self.pos >= 0 {
+            (self.pos + half) >> POS_FRAC
+        } else {
+            -((-self.pos + half) >> POS_FRAC)
+        };
+        p as i64
+    }
+
+    /// Position in 2⁻³³ steps (exact).
+    pub fn position_fine(&self) -> i128 {
+        self.pos
+    }
+
+    /// Velocity in 2⁻³² steps per tick (exact, signed).
+    pub fn velocity_internal(&self) -> i64 {
+        self.vel
+    }
+
+    /// Velocity in steps/s (toward zero).
+    pub fn velocity(&self) -> i64 {
+        speed_from_internal(self.vel, self.tick_us)
+    }
+
+    /// Limits in internal units: (vmax, acc, dec).
+    pub fn internal_limits(&self) -> (i64, i64, i64) {
+        (self.vmax, self.acc, self.dec)
+    }
+
+    /// At rest and nothing left to do.
+    pub fn is_settled(&self) -> bool {
+        self.vel == 0
+            && match self.mode {
+                Mode::Hold => true,
+                Mode::Position(t) => self.pos == i128::from(t) << POS_FRAC,
+                Mode::Velocity(v) => v == 0,
+            }
+    }
+
+    /// Whole step at or beyond `fine` in the direction of `vel`.
+    fn position_toward(&self, fine: i128, vel: i64) -> i64 {
+        let floor = fine >> POS_FRAC;
+        let exact = floor << POS_FRAC == fine;
+        let step = if vel > 0 && !exact { floor + 1 } else { floor };
+        let step = if vel == 0 {
+            // nearest
+            (fine + ONE_STEP / 2) >> POS_FRAC
+        } else {
+            step
+        };
+        step.clamp(i128::from(i64::MIN), i128::from(i64::MAX)) as i64
+    }
+
+    /// Advance one tick. Returns the new velocity (2⁻³² steps/tick).
+    pub fn tick(&mut self) -> i64 {
+        let next = match self.mode {
+            Mode::Hold => 0,
+            Mode::Velocity(target) => self.velocity_step(target),
+            Mode::Position(target) => self.position_step(target),
+        };
+        self.pos += i128::from(self.vel) + i128::from(next);
+        self.vel = next;
+        if let Mode::Position(t) = self.mode {
+            let goal = i128::from(t) << POS_FRAC;
+            // Parity leftovers of the last braking tick are below 2⁻³² steps.
+            if next == 0 && (goal - self.pos).abs() <= 2 {
+                self.pos = goal;
+            }
+        }
+        if let Mode::Velocity(0) = self.mode {
+            if next == 0 {
+                // Velocity mode with zero target has stopped: stay on a whole step.
+                self.mode = Mode::Position(self.position_toward(self.pos, 0));
+            }
+        }
+        next
+    }
+
+    fn velocity_step(&self, target: i64) -> i64 {
+        let target = target.clamp(-self.vmax, self.vmax);
+        let v = self.vel;
+        if v >= 0 && target >= v {
+            // Speeding up (or holding) forward.
+            if target - v <= self.acc {
+                target
+            } else {
+                v + self.acc
+            }
+        } else if v <= 0 && target <= v {
+            // Speeding up (or holding) in reverse.
+            if v - target <= self.acc {
+                target
+            } else {
+                v - self.acc
+            }
+        } else if v > 0 {
+            // Slowing down; never cross zero within a tick.
+            (v - self.dec).max(target).max(0)
+        } else {
+            (v + self.dec).min(target).min(0)
+        }
+    }
+
+    fn position_step(&self, target: i64) -> i64 {
+        let goal = i128::from(target) << POS_FRAC;
+        let rem = goal - self.pos;
+        // Mirror so that the target lies ahead (r ≥ 0).
+        let (r, v, sign) = if rem > 0 || (rem == 0 && self.vel <= 0) {
+            (rem, self.vel, 1i64)
+        } else {
+            (-rem, -self.vel, -1i64)
+        };
+        let w = if v < 0 {
+            // Moving away from the target: brake at dec toward zero.
+            (v + self.dec).min(0)
+        } else {
+            let upper = if v <= self.vmax {
+                (v + self.acc).min(self.vmax)
+            } else {
+                (v - self.dec).max(self.vmax)
+            };
+            let lower = (v - self.dec).max(0);
+            if reach(v, upper, self.dec) <= r {
+                upper
+            } else if reach(v, lower, self.dec) > r {
+                // Inside the braking distance: brake as hard as allowed.
+                lower
+            } else {
+                self.fit(r, v, lower, upper)
+            }
+        };
+        w * sign
+    }
+
+    /// Largest `w` in `[lower, upper]` with `reach(v, w) ≤ r`, given that
+    /// `reach(v, lower) ≤ r < reach(v, upper)`.
+    fn fit(&self, r: i128, v: i64, lower: i64, upper: i64) -> i64 {
+        let dec = self.dec;
+        // reach at a segment boundary k·dec is v + dec·k(k+1); find the last
+        // boundary in [lower, upper] that still fits.
+        let boundary = |k: i64| i128::from(v) + i128::from(dec) * i128::from(k) * i128::from(k + 1);
+        let mut lo = lower / dec; // boundary(lo) ≤ reach(lower) ≤ r
+        let mut hi = upper / dec + 1; // boundary(hi) ≥ reach(upper) > r
+        while hi - lo > 1 {
+            let mid = lo + (hi - lo) / 2;
+            if boundary(mid) <= r {
+                lo = mid;
+            } else {
+                hi = mid;
+            }
+        }
+        let k = lo;
+        // Inside segment k: reach = v + (2k+2)·w − dec·k(k+1).
+        let num = r - i128::from(v) + i128::from(dec) * i128::from(k) * i128::from(k + 1);
+        let w = num / i128::from(2 * k + 2);
+        let seg_top = i128::from(dec) * i128::from(k + 1) - 1;
+        let w = w.min(seg_top).min(i128::from(upper)).max(i128::from(lower));
+        w as i64
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MS: u32 = 1000;
+
+    fn lim(max_speed: u32, acc: u32, dec: u32) -> Limits {
+        Limits {
+            max_speed,
+            acc,
+            dec,
+        }
+    }
+
+    fn run_to_settle(p: &mut Profile, cap: u32) -> u32 {
+        let mut n = 0;
+        while !p.is_settled() {
+            p.tick();
+            n += 1;
+            assert!(n < cap, "did not settle in {cap} ticks");
+        }
+        n
+    }
+
+    #[test]
+    fn speed_conversion_rounds_down() {
+        // 1000 steps/s at 1 ms = 1 step/tick
+        assert_eq!(speed_to_internal(1000, MS), 1 << 32);
+        assert_eq!(speed_from_internal(1 << 32, MS), 1000);
+        assert_eq!(speed_to_internal(1, MS), 4_294_967);
+    }
+
+    #[test]
+    fn acceleration_conversion_rounds_down_but_never_to_zero() {
+        // 1e6 steps/s² at 1 ms = 1 step/tick²
+        assert_eq!(acc_to_internal(1_000_000, MS), 1 << 32);
+        assert_eq!(acc_to_internal(1, MS), 4294);
+        assert_eq!(acc_to_internal(0, 1), 1);
+    }
+
+    #[test]
+    fn braking_distance_of_whole_multiples_matches_continuous() {
+        // v = 4 dec: ticks 4→3→2→1→0, distance (7+5+3+1)/2 = 8 dec = v²/(2 dec)
+        assert_eq!(braking_distance(40, 10), 2 * 80);
+        assert_eq!(braking_distance(0, 10), 0);
+        // v = 5 (< dec): one tick, distance 5/2
+        assert_eq!(braking_distance(5, 10), 5);
+    }
+
+    #[test]
+    fn trapezoid_move_lands_exactly_on_target() {
+        let mut p = Profile::new(MS, lim(2000, 10_000, 5_000));
+        p.move_to(10_000);
+        run_to_settle(&mut p, 100_000);
+        assert_eq!(p.position_fine(), 10_000i128 << POS_FRAC);
+        assert_eq!(p.velocity_internal(), 0);
+    }
+
+    #[test]
+    fn triangle_move_lands_exactly_on_target() {
+        let mut p = Profile::new(MS, lim(50_000, 1_000, 3_000));
+        p.move_to(-137);
+        run_to_settle(&mut p, 100_000);
+        assert_eq!(p.position_round(), -137);
+        assert_eq!(p.position_fine(), -137i128 << POS_FRAC);
+    }
+
+    #[test]
+    fn trapezoid_time_matches_analytic_within_a_tick() {
+        // d = 10000, v = 2000, a = 10000, dec = 5000:
+        // T = d/v + v/2a + v/2dec = 5 + 0.1 + 0.2 = 5.3 s
+        let mut p = Profile::new(MS, lim(2000, 10_000, 5_000));
+        p.move_to(10_000);
+        let n = run_to_settle(&mut p, 100_000);
+        assert!((5299..=5301).contains(&n), "{n} ticks");
+    }
+
+    #[test]
+    fn retarget_behind_reverses_without_exceeding_dec() {
+        let mut p = Profile::new(MS, lim(1000, 2000, 2000));
+        p.move_to(100_000);
+        for _ in 0..800 {
+            p.tick();
+        }
+        assert!(p.velocity() > 0);
+        p.move_to(0);
+        let (_, _, dec) = p.internal_limits();
+        let mut prev = p.velocity_internal();
+        let mut n = 0;
+        while !p.is_settled() {
+            let v = p.tick();
+            assert!((v - prev).abs() <= dec.max(p.internal_limits().1));
+            prev = v;
+            n += 1;
+            assert!(n < 100_000);
+        }
+        assert_eq!(p.position_fine(), 0);
+    }
+
+    #[test]
+    fn velocity_mode_reaches_speed_and_soft_stop_ends_on_a_whole_step() {
+        let mut p = Profile::new(MS, lim(5000, 10_000, 10_000));
+        p.run_at(-3000);
+        for _ in 0..1000 {
+            p.tick();
+        }
+        assert_eq!(p.velocity(), -3000);
+        p.soft_stop();
+        run_to_settle(&mut p, 10_000);
+        assert_eq!(p.position_fine() & ((1 << POS_FRAC) - 1), 0);
+    }
+
+    #[test]
+    fn stop_now_zeroes_speed_on_the_nearest_step() {
+        let mut p = Profile::new(MS, lim(5000, 10_000, 10_000));
+        p.move_to(1_000_000);
+        for _ in 0..333 {
+            p.tick();
+        }
+        p.stop_now();
+        assert_eq!(p.velocity_internal(), 0);
+        assert!(p.is_settled());
+        assert_eq!(p.position_fine() & ((1 << POS_FRAC) - 1), 0);
+    }
+
+    #[test]
+    fn lowering_max_speed_mid_move_slows_down_at_dec() {
+        let mut p = Profile::new(MS, lim(4000, 10_000, 1_000));
+        p.move_to(1_000_000);
+        for _ in 0..1000 {
+            p.tick();
+        }
+        assert_eq!(p.velocity(), 4000);
+        p.set_limits(lim(1000, 10_000, 1_000));
+        let before = p.velocity_internal();
+        let after = p.tick();
+        assert_eq!(before - after, p.internal_limits().2);
+        for _ in 0..4000 {
+            p.tick();
+        }
+        assert_eq!(p.velocity(), 1000);
+    }
+}
