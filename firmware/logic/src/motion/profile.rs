@@ -97,7 +97,7 @@ pub const fn speed_from_internal(v: i64, tick_us: u32) -> i64 {
     if tick_us == 0 {
         return 0;
     }
-    (((v as i128) * 1_000_000) / (tick_us as i128) >> VEL_FRAC) as i64
+    ((((v as i128) * 1_000_000) / (tick_us as i128)) >> VEL_FRAC) as i64
 }
 
 /// Twice the discrete braking distance from speed `v ≥ 0` at deceleration

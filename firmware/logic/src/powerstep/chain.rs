@@ -391,6 +391,15 @@ pub struct Chain<B: ChainBus> {
     out_of_step: bool,
 }
 
+impl<B: ChainBus> core::fmt::Debug for Chain<B> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Chain")
+            .field("devices", &self.n)
+            .field("out_of_step", &self.out_of_step)
+            .finish_non_exhaustive()
+    }
+}
+
 impl<B: ChainBus> Chain<B> {
     pub const fn new(bus: B) -> Chain<B> {
         Chain {

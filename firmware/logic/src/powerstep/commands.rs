@@ -224,7 +224,7 @@ impl Command {
     }
 
     /// Total bytes on the wire for this device (command byte + arguments).
-    pub const fn len(&self) -> u8 {
+    pub const fn wire_len(&self) -> u8 {
         1 + self.arg_len()
     }
 
@@ -548,7 +548,7 @@ mod tests {
                 frame.extend((0..n).map(|i| 0x11 * (i + 1)));
                 // Mask args to what the command can carry, then compare.
                 let cmd = Command::decode(&frame).expect("decodes");
-                assert_eq!(cmd.len() as usize, frame.len());
+                assert_eq!(cmd.wire_len() as usize, frame.len());
                 let re = cmd.encode();
                 assert_eq!(re.as_slice()[0], b, "{b:#04x}");
             }

@@ -1,0 +1,140 @@
+//! The board: every pin and peripheral assignment, and nothing else.
+//!
+//! This is the one place in the firmware that names a pin or a peripheral
+//! instance. Other modules use the type aliases below, so moving a signal to
+//! another pin is a change to this file only (plus `docs/pins.md`, which
+//! mirrors [`PIN_TABLE`]).
+//!
+//! Active levels are those of the powerSTEP01 pins: STBY/RESET, FLAG and BUSY
+//! are active low; FLAG and BUSY are open-drain outputs of every chip, wired
+//! together (wired-OR of "some device has an alarm" / "some device is busy"),
+//! so the MCU provides the pull-ups.
+
+use stm32f4xx_hal::gpio::{self, Alternate, Input, Output, PinState, PushPull, Speed};
+use stm32f4xx_hal::pac;
+
+/// HSE crystal on OSC_IN/OSC_OUT.
+pub const HSE_HZ: u32 = 8_000_000;
+/// SYSCLK from HSE through the main PLL (the F405's maximum).
+pub const SYSCLK_HZ: u32 = 168_000_000;
+
+// ---------------------------------------------------------------------------
+// Peripherals
+// ---------------------------------------------------------------------------
+
+/// SPI master of the powerSTEP01 daisy chain (on APB2).
+pub type ChainSpi = pac::SPI1;
+/// Control-loop timer. Its update interrupt is bound to the `control_tick`
+/// task in `main.rs` (`binds = TIM2`: RTIC needs the interrupt's literal name,
+/// so that attribute must follow this alias).
+///
+/// `init` takes both instances out of `pac::Peripherals` by field name; the
+/// aliases make a mismatch there a compile error.
+pub type ControlTimer = pac::TIM2;
+
+// ---------------------------------------------------------------------------
+// Pins in use (configured by [`configure`])
+// ---------------------------------------------------------------------------
+
+/// SPI1 SCK, AF5 → CK of every chip.
+pub type ChainSck = gpio::PA5<Alternate<5>>;
+/// SPI1 MISO, AF5, internal pull-up ← SDO of the last chip in the chain.
+pub type ChainMiso = gpio::PA6<Alternate<5>>;
+/// SPI1 MOSI, AF5 → SDI of chip 0.
+pub type ChainMosi = gpio::PA7<Alternate<5>>;
+/// Chain chip select (software NSS), push-pull, idle high, common to all chips.
+pub type ChainCs = gpio::PA4<Output<PushPull>>;
+/// Chain STBY/RESET, push-pull, active low: low holds every chip in reset.
+pub type ChainStby = gpio::PC4<Output<PushPull>>;
+/// Chain FLAG, input with pull-up; open-drain wired-OR, low = some alarm.
+pub type ChainFlag = gpio::PC5<Input>;
+/// Chain BUSY, input with pull-up; open-drain wired-OR, low = some chip busy.
+pub type ChainBusy = gpio::PB0<Input>;
+/// Status LED, push-pull, high = on.
+pub type StatusLed = gpio::PB12<Output<PushPull>>;
+
+// ---------------------------------------------------------------------------
+// Pins reserved for later issues: declared, not configured
+// ---------------------------------------------------------------------------
+
+/// Reserved pins, in their reset mode. Nothing configures them yet; they are
+/// named here so the assignment is fixed and [`PIN_TABLE`] is complete.
+#[allow(dead_code)] // declarations only, until the issues that use them
+pub mod reserved {
+    use stm32f4xx_hal::gpio;
+
+    /// I2C1 SCL (AF4, open drain): PoStep60 I2C slave.
+    pub type HostI2cScl = gpio::PB6;
+    /// I2C1 SDA (AF4, open drain): PoStep60 I2C slave.
+    pub type HostI2cSda = gpio::PB7;
+    /// USART2 TX (AF7): Modbus RTU on RS-485.
+    pub type ModbusTx = gpio::PA2;
+    /// USART2 RX (AF7): Modbus RTU on RS-485.
+    pub type ModbusRx = gpio::PA3;
+    /// RS-485 transceiver driver enable (GPIO, high = transmit).
+    pub type ModbusDe = gpio::PA1;
+    /// USB OTG FS D− (AF10): USB HID.
+    pub type UsbDm = gpio::PA11;
+    /// USB OTG FS D+ (AF10): USB HID.
+    pub type UsbDp = gpio::PA12;
+    /// STEP pass-through to the chips' STCK inputs.
+    pub type ChainStck = gpio::PB1;
+}
+
+/// Every assignment as (signal, pin, notes); `docs/pins.md` is the same table
+/// in markdown. One entry per line so a script can compare the two.
+#[allow(dead_code)] // documentation data; the firmware never reads it
+#[rustfmt::skip] // keep one aligned row per pin
+pub const PIN_TABLE: &[(&str, &str, &str)] = &[
+    ("CHAIN_SCK",    "PA5",  "SPI1 SCK (AF5), mode 3, to CK of every powerSTEP01"),
+    ("CHAIN_MISO",   "PA6",  "SPI1 MISO (AF5), pull-up, from SDO of the last chip"),
+    ("CHAIN_MOSI",   "PA7",  "SPI1 MOSI (AF5), to SDI of chip 0"),
+    ("CHAIN_CS",     "PA4",  "GPIO push-pull, idle high, common CS of all chips"),
+    ("CHAIN_STBY",   "PC4",  "GPIO push-pull, STBY/RESET of all chips, active low"),
+    ("CHAIN_FLAG",   "PC5",  "input, pull-up; open-drain wired-OR FLAG, active low"),
+    ("CHAIN_BUSY",   "PB0",  "input, pull-up; open-drain wired-OR BUSY, active low"),
+    ("STATUS_LED",   "PB12", "GPIO push-pull, high = on"),
+    ("HOST_I2C_SCL", "PB6",  "reserved: I2C1 SCL (AF4), PoStep60 I2C slave"),
+    ("HOST_I2C_SDA", "PB7",  "reserved: I2C1 SDA (AF4), PoStep60 I2C slave"),
+    ("MODBUS_TX",    "PA2",  "reserved: USART2 TX (AF7), Modbus RTU on RS-485"),
+    ("MODBUS_RX",    "PA3",  "reserved: USART2 RX (AF7), Modbus RTU on RS-485"),
+    ("MODBUS_DE",    "PA1",  "reserved: GPIO, RS-485 driver enable"),
+    ("USB_DM",       "PA11", "reserved: USB OTG FS D- (AF10), USB HID"),
+    ("USB_DP",       "PA12", "reserved: USB OTG FS D+ (AF10), USB HID"),
+    ("CHAIN_STCK",   "PB1",  "reserved: GPIO, STEP pass-through to the chips' STCK"),
+];
+
+/// The configured pins of everything in use.
+pub struct Pins {
+    pub chain_sck: ChainSck,
+    pub chain_miso: ChainMiso,
+    pub chain_mosi: ChainMosi,
+    pub chain_cs: ChainCs,
+    pub chain_stby: ChainStby,
+    pub chain_flag: ChainFlag,
+    pub chain_busy: ChainBusy,
+    pub led: StatusLed,
+}
+
+/// Configure every pin in use from the split GPIO ports. Safe states first:
+/// CS high (deselected), STBY low (chips held in reset until the caller
+/// releases them), LED off. Reserved pins stay in their reset mode.
+pub fn configure(
+    gpioa: gpio::gpioa::Parts,
+    gpiob: gpio::gpiob::Parts,
+    gpioc: gpio::gpioc::Parts,
+) -> Pins {
+    Pins {
+        // SCK ≤ 4 MHz: medium slew is ample and keeps edges on the chain cable soft.
+        chain_sck: gpioa.pa5.into_alternate().speed(Speed::Medium),
+        // SDO is high-Z while CS is high: the pull-up keeps MISO defined
+        // (reads 0xFF with no chain attached).
+        chain_miso: gpioa.pa6.into_alternate().internal_pull_up(true),
+        chain_mosi: gpioa.pa7.into_alternate().speed(Speed::Medium),
+        chain_cs: gpioa.pa4.into_push_pull_output_in_state(PinState::High),
+        chain_stby: gpioc.pc4.into_push_pull_output_in_state(PinState::Low),
+        chain_flag: gpioc.pc5.into_pull_up_input(),
+        chain_busy: gpiob.pb0.into_pull_up_input(),
+        led: gpiob.pb12.into_push_pull_output_in_state(PinState::Low),
+    }
+}
