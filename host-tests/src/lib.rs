@@ -1,2 +1,5 @@
-//! Simulated hardware for scenario tests: see `bridge_logic::sim` for the
-//! powerSTEP01 model; this crate adds test harnesses around it.
+//! Harnesses around the simulated hardware in `bridge_logic::sim`, shared by
+//! the scenario tests in `tests/`, the plot and the benchmark binaries.
+
+pub mod rig;
+pub mod svg;

@@ -2,6 +2,10 @@
 //! axis output stage that turns setpoints into chain commands. Knows nothing
 //! of bytes on any bus.
 
+pub mod axis;
+pub mod group;
 pub mod profile;
 
+pub use axis::{Axis, AxisConfig, AxisFault, AxisState};
+pub use group::{AxisGroup, TickReport};
 pub use profile::{Limits, Mode, Profile};

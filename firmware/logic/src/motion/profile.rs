@@ -78,7 +78,14 @@ pub struct Profile {
 
 /// Steps/s → 2⁻³² steps/tick, rounded down (never above the limit).
 pub const fn speed_to_internal(steps_per_s: u32, tick_us: u32) -> i64 {
-    (((steps_per_s as u128) * (tick_us as u128)) << VEL_FRAC) as i64 / 1_000_000
+    // ≤ 2³² · 2³² · 2³² / 10⁶ < 2⁷⁷: divide in u128, then it fits i64 for any
+    // tick up to 2 s (u32 steps/s · 2 s ≪ 2³¹ steps per tick).
+    let q = (((steps_per_s as u128) * (tick_us as u128)) << VEL_FRAC) / 1_000_000;
+    if q > i64::MAX as u128 {
+        i64::MAX
+    } else {
+        q as i64
+    }
 }
 
 /// Steps/s² → 2⁻³² steps/tick², rounded down, at least one quantum.
@@ -87,6 +94,8 @@ pub const fn acc_to_internal(steps_per_s2: u32, tick_us: u32) -> i64 {
     let q = (((steps_per_s2 as u128) * t * t) << VEL_FRAC) / 1_000_000_000_000;
     if q == 0 {
         1
+    } else if q > i64::MAX as u128 {
+        i64::MAX
     } else {
         q as i64
     }
@@ -382,6 +391,14 @@ mod tests {
             assert!(n < cap, "did not settle in {cap} ticks");
         }
         n
+    }
+
+    #[test]
+    fn fast_logical_speeds_do_not_overflow() {
+        // 3 000 000 logical steps/s (1/256 steps at ~11 700 full steps/s)
+        assert_eq!(speed_to_internal(3_000_000, MS), 12_884_901_888_000);
+        assert_eq!(speed_to_internal(u32::MAX, MS), 18_446_744_069_414_584);
+        assert!(acc_to_internal(u32::MAX, MS) > 0);
     }
 
     #[test]

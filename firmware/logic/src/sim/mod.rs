@@ -1,2 +1,15 @@
-//! Byte-accurate powerSTEP01 simulator (feature `sim`). Filled in by the
-//! simulator work; see `device.rs` and `chain.rs`.
+//! Byte-accurate powerSTEP01 simulator (feature `sim`), `no_std`, no allocation.
+//!
+//! * [`device`] — one chip: SPI parser and responses, registers, STATUS
+//!   flags, the motion engine integrated exactly in chip units, SW input and
+//!   fault injection. Its module docs list what is guaranteed and which
+//!   behaviours are modelling choices.
+//! * [`chain`] — N chips wired as one daisy-chain shift register, usable as
+//!   the [`ChainBus`](crate::powerstep::ChainBus) of a
+//!   [`Chain`](crate::powerstep::Chain).
+
+pub mod chain;
+pub mod device;
+
+pub use chain::SimChain;
+pub use device::{Fault, Powerstep01, TICK_NS};

@@ -1,0 +1,105 @@
+//! All axes of the chain, ticked together: one batch per control tick, so
+//! every axis's output command completes in the same CS window.
+
+use heapless::Vec;
+
+use super::axis::Axis;
+use crate::powerstep::chain::{
+    Batch, Chain, ChainBus, ChainError, Plan, Replies, ScheduleError, MAX_DEVICES,
+};
+
+/// The axes of one chain; axis k drives chain device k.
+#[derive(Clone, Debug, Default)]
+pub struct AxisGroup {
+    axes: Vec<Axis, MAX_DEVICES>,
+}
+
+/// The group already has [`MAX_DEVICES`] axes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct GroupFull;
+
+/// What one tick put on the chain.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct TickReport {
+    pub windows: usize,
+    pub bytes: usize,
+    /// Window in which every axis's output command completed.
+    pub sync_window: usize,
+}
+
+impl AxisGroup {
+    pub fn new() -> AxisGroup {
+        AxisGroup { axes: Vec::new() }
+    }
+
+    /// Add the axis for the next chain device.
+    pub fn push(&mut self, axis: Axis) -> Result<(), GroupFull> {
+        self.axes.push(axis).map_err(|_| GroupFull)
+    }
+
+    pub fn len(&self) -> usize {
+        self.axes.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.axes.is_empty()
+    }
+
+    pub fn axis(&self, k: usize) -> Option<&Axis> {
+        self.axes.get(k)
+    }
+
+    pub fn axis_mut(&mut self, k: usize) -> Option<&mut Axis> {
+        self.axes.get_mut(k)
+    }
+
+    pub fn iter(&self) -> impl Iterator<Item = &Axis> {
+        self.axes.iter()
+    }
+
+    /// Every axis settled.
+    pub fn is_settled(&self) -> bool {
+        self.axes.iter().all(|a| a.is_settled())
+    }
+
+    /// First half of a tick: every axis plans its commands; one plan for the chain.
+    pub fn prepare(&mut self) -> Result<Plan, ScheduleError> {
+        let mut batch = Batch::new(self.axes.len());
+        for (d, axis) in self.axes.iter_mut().enumerate() {
+            axis.plan(|cmd| batch.push(d, cmd).is_ok());
+        }
+        Plan::new(&batch)
+    }
+
+    /// Second half of a tick: every axis takes its replies.
+    pub fn finish(&mut self, replies: &Replies) {
+        for (d, axis) in self.axes.iter_mut().enumerate() {
+            axis.absorb(replies, d);
+        }
+    }
+
+    /// One control tick on `chain` (whose length must equal the number of axes).
+    pub fn tick<B: ChainBus>(
+        &mut self,
+        chain: &mut Chain<B>,
+    ) -> Result<TickReport, ChainError<B::Error>> {
+        let plan = self.prepare().map_err(ChainError::Schedule)?;
+        let report = TickReport {
+            windows: plan.windows(),
+            bytes: plan.bytes(),
+            sync_window: plan.sync_window(),
+        };
+        match chain.run(&plan) {
+            Ok(replies) => {
+                self.finish(&replies);
+                Ok(report)
+            }
+            Err(e) => {
+                self.finish(&Replies::default());
+                Err(e)
+            }
+        }
+    }
+}

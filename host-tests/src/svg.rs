@@ -1,0 +1,129 @@
+//! A tiny dependency-free SVG line-chart writer for the plots in `docs/`.
+
+use std::fmt::Write as _;
+
+/// One line of a panel.
+pub struct Series<'a> {
+    pub name: &'a str,
+    pub color: &'a str,
+    pub points: &'a [(f64, f64)],
+}
+
+/// One panel (shared x axis).
+pub struct Panel<'a> {
+    pub title: &'a str,
+    pub y_label: &'a str,
+    pub series: Vec<Series<'a>>,
+}
+
+const W: f64 = 900.0;
+const PANEL_H: f64 = 260.0;
+const ML: f64 = 80.0;
+const MR: f64 = 20.0;
+const MT: f64 = 30.0;
+const MB: f64 = 40.0;
+
+fn bounds(panel: &Panel) -> (f64, f64, f64, f64) {
+    let pts = panel.series.iter().flat_map(|s| s.points.iter());
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    for &(x, y) in pts {
+        x0 = x0.min(x);
+        x1 = x1.max(x);
+        y0 = y0.min(y);
+        y1 = y1.max(y);
+    }
+    if x1 <= x0 {
+        x1 = x0 + 1.0;
+    }
+    if y1 <= y0 {
+        y1 = y0 + 1.0;
+    }
+    let pad = (y1 - y0) * 0.05;
+    (x0, x1, y0 - pad, y1 + pad)
+}
+
+/// Render panels stacked vertically, x in seconds.
+pub fn render(title: &str, panels: &[Panel]) -> String {
+    let h = MT + panels.len() as f64 * (PANEL_H + MB) + 10.0;
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        r#"<svg xmlns="http://www.w3.org/2000/svg" width="{W}" height="{h}" font-family="sans-serif" font-size="12">"#
+    );
+    let _ = writeln!(s, r#"<rect width="100%" height="100%" fill="white"/>"#);
+    let _ = writeln!(
+        s,
+        r#"<text x="{}" y="18" font-size="15" text-anchor="middle">{title}</text>"#,
+        W / 2.0
+    );
+    for (i, panel) in panels.iter().enumerate() {
+        let top = MT + i as f64 * (PANEL_H + MB);
+        let (x0, x1, y0, y1) = bounds(panel);
+        let pw = W - ML - MR;
+        let px = |x: f64| ML + (x - x0) / (x1 - x0) * pw;
+        let py = |y: f64| top + PANEL_H - (y - y0) / (y1 - y0) * PANEL_H;
+        let _ = writeln!(
+            s,
+            r##"<rect x="{ML}" y="{top}" width="{pw}" height="{PANEL_H}" fill="none" stroke="#888"/>"##
+        );
+        for k in 0..=5 {
+            let yv = y0 + (y1 - y0) * k as f64 / 5.0;
+            let xv = x0 + (x1 - x0) * k as f64 / 5.0;
+            let _ = writeln!(
+                s,
+                r##"<line x1="{ML}" x2="{}" y1="{y}" y2="{y}" stroke="#eee"/><text x="{}" y="{}" text-anchor="end">{yv:.0}</text>"##,
+                ML + pw,
+                ML - 4.0,
+                py(yv) + 4.0,
+                y = py(yv)
+            );
+            let _ = writeln!(
+                s,
+                r#"<text x="{}" y="{}" text-anchor="middle">{xv:.2} s</text>"#,
+                px(xv),
+                top + PANEL_H + 15.0
+            );
+        }
+        let _ = writeln!(
+            s,
+            r#"<text x="14" y="{}" transform="rotate(-90 14 {})" text-anchor="middle">{}</text>"#,
+            top + PANEL_H / 2.0,
+            top + PANEL_H / 2.0,
+            panel.y_label
+        );
+        let _ = writeln!(
+            s,
+            r#"<text x="{}" y="{}">{}</text>"#,
+            ML + 6.0,
+            top + 14.0,
+            panel.title
+        );
+        for (j, series) in panel.series.iter().enumerate() {
+            let mut d = String::new();
+            for (k, &(x, y)) in series.points.iter().enumerate() {
+                let _ = write!(
+                    d,
+                    "{}{:.1},{:.1} ",
+                    if k == 0 { "M" } else { "L" },
+                    px(x),
+                    py(y)
+                );
+            }
+            let _ = writeln!(
+                s,
+                r#"<path d="{d}" fill="none" stroke="{}" stroke-width="1.5"/>"#,
+                series.color
+            );
+            let _ = writeln!(
+                s,
+                r#"<text x="{}" y="{}" fill="{}">{}</text>"#,
+                ML + pw - 200.0,
+                top + 16.0 + 14.0 * j as f64,
+                series.color,
+                series.name
+            );
+        }
+    }
+    s.push_str("</svg>\n");
+    s
+}
