@@ -20,7 +20,7 @@ fn bench_profile_tick(p: &mut Profile) -> i64 {
 }
 
 #[inline(never)]
-fn bench_prepare(g: &mut AxisGroup) -> Option<Plan> {
+fn bench_prepare(g: &mut AxisGroup) -> Option<&Plan> {
     g.prepare().ok()
 }
 
@@ -77,18 +77,24 @@ fn main() {
                     a.move_to(if k % 2 == 0 { 1 << 30 } else { -(1 << 30) });
                 }
             }
-            let (mut windows, mut bytes) = (0usize, 0usize);
+            let mut histogram = std::collections::BTreeMap::<usize, u32>::new();
+            let mut replies = Replies::default();
             for _ in 0..n {
                 let Some(plan) = bench_prepare(&mut group) else {
                     break;
                 };
-                windows = windows.max(plan.windows());
-                bytes = bytes.max(plan.bytes());
-                let replies = chain.run(&plan).unwrap_or_default();
+                *histogram.entry(plan.windows()).or_default() += 1;
+                if chain.run_into(plan, &mut replies).is_err() {
+                    replies = Replies::default();
+                }
                 bench_finish(&mut group, &replies);
                 chain.bus_mut().advance(u64::from(TICK_US) * 1000);
             }
-            println!("group: {n} ticks of 8 axes, max {windows} windows / {bytes} bytes per tick");
+            let h: Vec<String> = histogram
+                .iter()
+                .map(|(w, c)| format!("{w} windows ({} bytes): {c} ticks", w * 8))
+                .collect();
+            println!("group: {n} ticks of 8 axes streaming; {}", h.join(", "));
         }
     }
 }

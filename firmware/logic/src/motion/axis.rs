@@ -218,6 +218,8 @@ pub struct Axis {
     pos_at: u32,
     /// Chip MAX_SPEED, ACC, DEC as written (register values).
     chip_limits: (u32, u32, u32),
+    /// (profile max speed, its MAX_SPEED backstop register), cached.
+    backstop: (u32, u32),
     fault: Option<AxisFault>,
     tick: u32,
 }
@@ -248,6 +250,7 @@ impl Axis {
             status_at: 0,
             pos_at: 0,
             chip_limits: (0, 0, 0),
+            backstop: (0, 0),
             fault: None,
             tick: 0,
         }
@@ -488,14 +491,23 @@ impl Axis {
     }
 
     fn stream(&mut self, emit: &mut impl FnMut(Command) -> bool) {
-        let before = self.profile.velocity().unsigned_abs();
+        let before = self.profile.velocity_internal().unsigned_abs();
         self.profile.tick();
         // MAX_SPEED backstop: raised at once when the profile needs more; lowered
         // to the new max speed only once the profile has slowed down to it (a
         // lower max speed mid-move is reached with the profile's DEC, not the chip's).
-        let vmax = u64::from(self.profile.limits().max_speed);
-        let now = before.max(self.profile.velocity().unsigned_abs());
-        let need = self.backstop_reg(now.max(vmax).min(u64::from(u32::MAX)) as u32);
+        let vmax = self.profile.internal_limits().0.unsigned_abs();
+        let now = before.max(self.profile.velocity_internal().unsigned_abs());
+        let max_speed = self.profile.limits().max_speed;
+        if self.backstop.0 != max_speed {
+            self.backstop = (max_speed, self.backstop_reg(max_speed));
+        }
+        let need = if now > vmax {
+            let v = super::profile::speed_from_internal(now as i64, self.cfg.tick_us);
+            self.backstop_reg(v.clamp(0, i64::from(u32::MAX)) as u32)
+        } else {
+            self.backstop.1
+        };
         if need > self.chip_limits.0 || (now <= vmax && need != self.chip_limits.0) {
             emit(Command::SetParam(Register::MaxSpeed, need));
             self.chip_limits.0 = need;

@@ -9,9 +9,19 @@ use crate::powerstep::chain::{
 };
 
 /// The axes of one chain; axis k drives chain device k.
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct AxisGroup {
     axes: Vec<Axis, MAX_DEVICES>,
+    /// Reused every tick (no copies of the frames on the control path).
+    batch: Batch,
+    plan: Plan,
+    replies: Replies,
+}
+
+impl Default for AxisGroup {
+    fn default() -> AxisGroup {
+        AxisGroup::new()
+    }
 }
 
 /// The group already has [`MAX_DEVICES`] axes.
@@ -31,7 +41,12 @@ pub struct TickReport {
 
 impl AxisGroup {
     pub fn new() -> AxisGroup {
-        AxisGroup { axes: Vec::new() }
+        AxisGroup {
+            axes: Vec::new(),
+            batch: Batch::new(0),
+            plan: Plan::default(),
+            replies: Replies::default(),
+        }
     }
 
     /// Add the axis for the next chain device.
@@ -65,12 +80,14 @@ impl AxisGroup {
     }
 
     /// First half of a tick: every axis plans its commands; one plan for the chain.
-    pub fn prepare(&mut self) -> Result<Plan, ScheduleError> {
-        let mut batch = Batch::new(self.axes.len());
+    pub fn prepare(&mut self) -> Result<&Plan, ScheduleError> {
+        let batch = &mut self.batch;
+        batch.reset(self.axes.len());
         for (d, axis) in self.axes.iter_mut().enumerate() {
             axis.plan(|cmd| batch.push(d, cmd).is_ok());
         }
-        Plan::new(&batch)
+        self.plan.schedule(&self.batch)?;
+        Ok(&self.plan)
     }
 
     /// Second half of a tick: every axis takes its replies.
@@ -85,21 +102,19 @@ impl AxisGroup {
         &mut self,
         chain: &mut Chain<B>,
     ) -> Result<TickReport, ChainError<B::Error>> {
-        let plan = self.prepare().map_err(ChainError::Schedule)?;
+        self.prepare().map_err(ChainError::Schedule)?;
         let report = TickReport {
-            windows: plan.windows(),
-            bytes: plan.bytes(),
-            sync_window: plan.sync_window(),
+            windows: self.plan.windows(),
+            bytes: self.plan.bytes(),
+            sync_window: self.plan.sync_window(),
         };
-        match chain.run(&plan) {
-            Ok(replies) => {
-                self.finish(&replies);
-                Ok(report)
-            }
-            Err(e) => {
-                self.finish(&Replies::default());
-                Err(e)
-            }
+        let result = chain.run_into(&self.plan, &mut self.replies);
+        if result.is_err() {
+            self.replies = Replies::default();
         }
+        for (d, axis) in self.axes.iter_mut().enumerate() {
+            axis.absorb(&self.replies, d);
+        }
+        result.map(|()| report)
     }
 }

@@ -135,6 +135,12 @@ impl Batch {
             c.clear();
         }
     }
+
+    /// Empty the batch and make it one for `n` devices (clamped to [`MAX_DEVICES`]).
+    pub fn reset(&mut self, n: usize) {
+        self.clear();
+        self.n = n.min(MAX_DEVICES) as u8;
+    }
 }
 
 /// Where a response will come out.
@@ -148,6 +154,9 @@ struct ReadSlot {
 }
 
 /// A scheduled batch: the bytes of every window and where replies come out.
+///
+/// A plan can be refilled in place ([`Plan::schedule`]) so the control tick
+/// builds it without copying.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Plan {
     n: u8,
@@ -158,96 +167,118 @@ pub struct Plan {
     reads: Vec<ReadSlot, { MAX_DEVICES * MAX_COMMANDS }>,
 }
 
-/// Lay out one device's commands: (bytes, length of command bytes,
-/// response end exclusive, reads relative to the stream start).
-struct Stream {
-    bytes: [u8; MAX_WINDOWS],
-    len: usize,
-    end: usize,
-    reads: Vec<(u8, u8, u8, Command), MAX_COMMANDS>,
+impl Default for Plan {
+    fn default() -> Plan {
+        Plan {
+            n: 0,
+            windows: 0,
+            sync_window: 0,
+            tx: [[0; MAX_DEVICES]; MAX_WINDOWS],
+            reads: Vec::new(),
+        }
+    }
 }
 
-fn lay_out(cmds: &[Command]) -> Result<Stream, ScheduleError> {
-    let mut s = Stream {
-        bytes: [0; MAX_WINDOWS],
+/// Where each of a device's commands starts in its own stream, the stream's
+/// command-byte length, and the end of its last response (exclusive).
+struct Layout {
+    starts: [u8; MAX_COMMANDS],
+    len: usize,
+    end: usize,
+}
+
+fn lay_out(cmds: &[Command]) -> Layout {
+    let mut l = Layout {
+        starts: [0; MAX_COMMANDS],
         len: 0,
         end: 0,
-        reads: Vec::new(),
     };
     // Earliest position at which the next response-producing command may go.
     let mut free_at = 0usize;
-    for (i, cmd) in cmds.iter().enumerate() {
+    for (start, cmd) in l.starts.iter_mut().zip(cmds.iter()) {
         let resp = usize::from(cmd.response_len());
-        if resp > 0 && s.len < free_at {
-            s.len = free_at; // NOP padding (bytes are already 0x00)
+        if resp > 0 && l.len < free_at {
+            l.len = free_at; // NOP padding
         }
-        let enc = cmd.encode();
-        let start = s.len;
-        let stop = start + enc.len();
-        let dst = s
-            .bytes
-            .get_mut(start..stop)
-            .ok_or(ScheduleError::TooManyWindows)?;
-        dst.copy_from_slice(enc.as_slice());
-        s.len = stop;
+        *start = l.len as u8;
         if resp > 0 {
-            free_at = start + resp;
-            s.end = s.end.max(start + 1 + resp);
-            s.reads
-                .push((i as u8, (start + 1) as u8, resp as u8, *cmd))
-                .map_err(|_| ScheduleError::TooManyCommands)?;
+            free_at = l.len + resp;
+            l.end = l.end.max(l.len + 1 + resp);
         }
+        l.len += usize::from(cmd.wire_len());
     }
-    s.end = s.end.max(s.len);
-    Ok(s)
+    l.end = l.end.max(l.len);
+    l
 }
 
 impl Plan {
     /// Schedule `batch` (see the module docs for the rules).
     pub fn new(batch: &Batch) -> Result<Plan, ScheduleError> {
+        let mut plan = Plan::default();
+        plan.schedule(batch)?;
+        Ok(plan)
+    }
+
+    /// Refill this plan with `batch`. On error the plan is left empty.
+    pub fn schedule(&mut self, batch: &Batch) -> Result<(), ScheduleError> {
         let n = usize::from(batch.n);
-        let mut streams: Vec<Stream, MAX_DEVICES> = Vec::new();
-        for d in 0..n {
-            let s = lay_out(batch.commands(d))?;
-            if streams.push(s).is_err() {
-                return Err(ScheduleError::NoSuchDevice(d as u8));
-            }
+        self.n = batch.n;
+        self.windows = 0;
+        self.sync_window = 0;
+        self.reads.clear();
+        let mut layouts: [Layout; MAX_DEVICES] = core::array::from_fn(|_| Layout {
+            starts: [0; MAX_COMMANDS],
+            len: 0,
+            end: 0,
+        });
+        let mut sync = 0;
+        for (d, l) in layouts.iter_mut().enumerate().take(n) {
+            *l = lay_out(batch.commands(d));
+            sync = sync.max(l.len);
         }
-        let sync = streams.iter().map(|s| s.len).max().unwrap_or(0);
-        let windows = streams
+        let windows = layouts
             .iter()
-            .map(|s| sync - s.len + s.end)
+            .take(n)
+            .map(|l| sync - l.len + l.end)
             .max()
             .unwrap_or(0);
         if windows > MAX_WINDOWS {
+            self.n = 0;
             return Err(ScheduleError::TooManyWindows);
         }
-        let mut plan = Plan {
-            n: batch.n,
-            windows: windows as u8,
-            sync_window: sync.saturating_sub(1) as u8,
-            tx: [[0; MAX_DEVICES]; MAX_WINDOWS],
-            reads: Vec::new(),
-        };
-        for (d, s) in streams.iter().enumerate() {
-            let offset = sync - s.len;
+        for row in self.tx.iter_mut().take(windows) {
+            *row = [0; MAX_DEVICES];
+        }
+        self.windows = windows as u8;
+        self.sync_window = sync.saturating_sub(1) as u8;
+        for (d, l) in layouts.iter().enumerate().take(n) {
+            let offset = sync - l.len;
             let slot = n - 1 - d; // position of device d inside a window
-            for (k, b) in s.bytes.iter().take(s.len).enumerate() {
-                if let Some(cell) = plan.tx.get_mut(offset + k).and_then(|w| w.get_mut(slot)) {
-                    *cell = *b;
+            for (index, (cmd, &start)) in batch.commands(d).iter().zip(l.starts.iter()).enumerate()
+            {
+                let at = offset + usize::from(start);
+                let (bytes, len) = cmd.encode().raw();
+                // `at + len ≤ windows ≤ MAX_WINDOWS` by construction of the layout.
+                if let Some(rows) = self.tx.get_mut(at..at + len) {
+                    for (row, b) in rows.iter_mut().zip(bytes) {
+                        if let Some(cell) = row.get_mut(slot) {
+                            *cell = b;
+                        }
+                    }
+                }
+                let len = cmd.response_len();
+                if len > 0 {
+                    let _ = self.reads.push(ReadSlot {
+                        device: d as u8,
+                        index: index as u8,
+                        first_window: (at + 1) as u8,
+                        len,
+                        command: *cmd,
+                    });
                 }
             }
-            for &(index, first, len, command) in s.reads.iter() {
-                let _ = plan.reads.push(ReadSlot {
-                    device: d as u8,
-                    index,
-                    first_window: (offset + usize::from(first)) as u8,
-                    len,
-                    command,
-                });
-            }
         }
-        Ok(plan)
+        Ok(())
     }
 
     /// Chain length this plan was made for.
@@ -281,6 +312,13 @@ impl Plan {
     /// Decode what came back.
     pub fn decode(&self, rx: &Frames) -> Replies {
         let mut replies = Replies::default();
+        self.decode_into(rx, &mut replies);
+        replies
+    }
+
+    /// Decode what came back into `replies` (cleared first).
+    pub fn decode_into(&self, rx: &Frames, replies: &mut Replies) {
+        replies.items = [[None; MAX_COMMANDS]; MAX_DEVICES];
         let n = self.devices();
         for r in self.reads.iter() {
             let slot = n - 1 - usize::from(r.device);
@@ -306,7 +344,6 @@ impl Plan {
                 *cell = Some(reply);
             }
         }
-        replies
     }
 }
 
@@ -453,6 +490,17 @@ impl<B: ChainBus> Chain<B> {
 
     /// Clock the windows of a plan made for this chain.
     pub fn run(&mut self, plan: &Plan) -> Result<Replies, ChainError<B::Error>> {
+        let mut replies = Replies::default();
+        self.run_into(plan, &mut replies)?;
+        Ok(replies)
+    }
+
+    /// Clock the windows of a plan and decode the replies into `replies`.
+    pub fn run_into(
+        &mut self,
+        plan: &Plan,
+        replies: &mut Replies,
+    ) -> Result<(), ChainError<B::Error>> {
         if self.n == 0 {
             return Err(ChainError::NotDetected);
         }
@@ -473,7 +521,8 @@ impl<B: ChainBus> Chain<B> {
                 return Err(ChainError::Bus(e));
             }
         }
-        Ok(plan.decode(&rx))
+        plan.decode_into(&rx, replies);
+        Ok(())
     }
 
     /// Schedule and run a batch.

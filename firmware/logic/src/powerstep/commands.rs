@@ -110,18 +110,25 @@ pub struct Encoded {
 }
 
 impl Encoded {
+    #[inline]
     fn new(cmd: u8, value: u32, arg_bytes: u8) -> Encoded {
-        let be = value.to_be_bytes();
-        let mut bytes = [cmd, 0, 0, 0];
         // Right-aligned, MSB first: the last `arg_bytes` of the big-endian value.
-        let start = 4 - usize::from(arg_bytes);
-        for (slot, b) in bytes.iter_mut().skip(1).zip(be.iter().skip(start)) {
-            *slot = *b;
-        }
+        let b = value.to_be_bytes();
+        let bytes = match arg_bytes {
+            0 => [cmd, 0, 0, 0],
+            1 => [cmd, b[3], 0, 0],
+            2 => [cmd, b[2], b[3], 0],
+            _ => [cmd, b[1], b[2], b[3]],
+        };
         Encoded {
             bytes,
-            len: 1 + arg_bytes,
+            len: 1 + arg_bytes.min(3),
         }
+    }
+
+    /// The bytes as a fixed array (unused tail bytes are 0) and their count.
+    pub const fn raw(&self) -> ([u8; 4], usize) {
+        (self.bytes, self.len as usize)
     }
 
     pub fn as_slice(&self) -> &[u8] {
