@@ -15,7 +15,9 @@
 #![warn(missing_debug_implementations)]
 
 pub mod motion;
+pub mod postep;
 pub mod powerstep;
+pub mod transport;
 
 #[cfg(feature = "sim")]
 pub mod sim;
