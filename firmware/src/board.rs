@@ -10,7 +10,9 @@
 //! together (wired-OR of "some device has an alarm" / "some device is busy"),
 //! so the MCU provides the pull-ups.
 
-use stm32f4xx_hal::gpio::{self, Alternate, Input, Output, PinState, PushPull, Speed};
+use stm32f4xx_hal::gpio::{
+    self, Alternate, Analog, Input, OpenDrain, Output, PinState, PushPull, Speed,
+};
 use stm32f4xx_hal::pac;
 
 /// HSE crystal on OSC_IN/OSC_OUT.
@@ -31,6 +33,13 @@ pub type ChainSpi = pac::SPI1;
 /// `init` takes both instances out of `pac::Peripherals` by field name; the
 /// aliases make a mismatch there a compile error.
 pub type ControlTimer = pac::TIM2;
+/// PoStep60 I2C slave (on APB1). Its event and error interrupts are
+/// `I2C1_EV` / `I2C1_ER` (the `binds =` of the I2C tasks in `main.rs` must
+/// follow this alias, as for [`ControlTimer`]).
+pub type HostI2c = pac::I2C1;
+/// ADC for the motor supply, the internal temperature sensor and VREFINT
+/// (only ADC1 reaches the internal channels 16 and 17).
+pub type SenseAdc = pac::ADC1;
 
 // ---------------------------------------------------------------------------
 // Pins in use (configured by [`configure`])
@@ -52,6 +61,12 @@ pub type ChainFlag = gpio::PC5<Input>;
 pub type ChainBusy = gpio::PB0<Input>;
 /// Status LED, push-pull, high = on.
 pub type StatusLed = gpio::PB12<Output<PushPull>>;
+/// I2C1 SCL, AF4, open drain (the bus has its pull-ups): PoStep60 I2C slave.
+pub type HostI2cScl = gpio::PB6<Alternate<4, OpenDrain>>;
+/// I2C1 SDA, AF4, open drain: PoStep60 I2C slave.
+pub type HostI2cSda = gpio::PB7<Alternate<4, OpenDrain>>;
+/// ADC1_IN0, analog: the motor supply through the board divider (÷20).
+pub type SupplySense = gpio::PA0<Analog>;
 
 // ---------------------------------------------------------------------------
 // Pins reserved for later issues: declared, not configured
@@ -63,10 +78,6 @@ pub type StatusLed = gpio::PB12<Output<PushPull>>;
 pub mod reserved {
     use stm32f4xx_hal::gpio;
 
-    /// I2C1 SCL (AF4, open drain): PoStep60 I2C slave.
-    pub type HostI2cScl = gpio::PB6;
-    /// I2C1 SDA (AF4, open drain): PoStep60 I2C slave.
-    pub type HostI2cSda = gpio::PB7;
     /// USART2 TX (AF7): Modbus RTU on RS-485.
     pub type ModbusTx = gpio::PA2;
     /// USART2 RX (AF7): Modbus RTU on RS-485.
@@ -94,8 +105,9 @@ pub const PIN_TABLE: &[(&str, &str, &str)] = &[
     ("CHAIN_FLAG",   "PC5",  "input, pull-up; open-drain wired-OR FLAG, active low"),
     ("CHAIN_BUSY",   "PB0",  "input, pull-up; open-drain wired-OR BUSY, active low"),
     ("STATUS_LED",   "PB12", "GPIO push-pull, high = on"),
-    ("HOST_I2C_SCL", "PB6",  "reserved: I2C1 SCL (AF4), PoStep60 I2C slave"),
-    ("HOST_I2C_SDA", "PB7",  "reserved: I2C1 SDA (AF4), PoStep60 I2C slave"),
+    ("HOST_I2C_SCL", "PB6",  "I2C1 SCL (AF4), open drain, PoStep60 I2C slave"),
+    ("HOST_I2C_SDA", "PB7",  "I2C1 SDA (AF4), open drain, PoStep60 I2C slave"),
+    ("SUPPLY_SENSE", "PA0",  "analog, motor supply through the board divider (÷20)"),
     ("MODBUS_TX",    "PA2",  "reserved: USART2 TX (AF7), Modbus RTU on RS-485"),
     ("MODBUS_RX",    "PA3",  "reserved: USART2 RX (AF7), Modbus RTU on RS-485"),
     ("MODBUS_DE",    "PA1",  "reserved: GPIO, RS-485 driver enable"),
@@ -111,19 +123,29 @@ pub struct Pins {
     pub chain_mosi: ChainMosi,
     pub chain_cs: ChainCs,
     pub chain_stby: ChainStby,
+    // FLAG/BUSY are configured (inputs with pull-ups, so the open-drain lines
+    // are defined) but not read: the bridge reads STATUS every 2 ms instead.
+    #[allow(dead_code)]
     pub chain_flag: ChainFlag,
+    #[allow(dead_code)]
     pub chain_busy: ChainBusy,
     pub led: StatusLed,
+    pub host_i2c_scl: HostI2cScl,
+    pub host_i2c_sda: HostI2cSda,
+    pub supply_sense: SupplySense,
 }
 
 /// Configure every pin in use from the split GPIO ports. Safe states first:
 /// CS high (deselected), STBY low (chips held in reset until the caller
-/// releases them), LED off. Reserved pins stay in their reset mode.
+/// releases them), LED off; the I2C pins are released (open drain, and the
+/// I2C peripheral stays off until its driver starts it). Reserved pins stay
+/// in their reset mode.
 pub fn configure(
     gpioa: gpio::gpioa::Parts,
     gpiob: gpio::gpiob::Parts,
     gpioc: gpio::gpioc::Parts,
 ) -> Pins {
+    let (host_i2c_scl, host_i2c_sda) = host_i2c_pins(gpiob.pb6, gpiob.pb7);
     Pins {
         // SCK ≤ 4 MHz: medium slew is ample and keeps edges on the chain cable soft.
         chain_sck: gpioa.pa5.into_alternate().speed(Speed::Medium),
@@ -136,5 +158,23 @@ pub fn configure(
         chain_flag: gpioc.pc5.into_pull_up_input(),
         chain_busy: gpiob.pb0.into_pull_up_input(),
         led: gpiob.pb12.into_push_pull_output_in_state(PinState::Low),
+        host_i2c_scl,
+        host_i2c_sda,
+        supply_sense: gpioa.pa0.into_analog(),
     }
+}
+
+/// The host I2C lines: AF4, open drain, no internal pull-up (the ~40 kΩ
+/// internal pull-ups are far too weak for 400 kHz; the bus brings its own).
+/// Low slew rate: ample for 400 kHz, and the falling edges stay well within
+/// the Fm fall-time window (20 + 0.1·Cb … 300 ns).
+pub fn host_i2c_pins(scl: gpio::PB6, sda: gpio::PB7) -> (HostI2cScl, HostI2cSda) {
+    (
+        scl.into_alternate_open_drain()
+            .internal_pull_up(false)
+            .speed(Speed::Low),
+        sda.into_alternate_open_drain()
+            .internal_pull_up(false)
+            .speed(Speed::Low),
+    )
 }

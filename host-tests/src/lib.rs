@@ -1,5 +1,6 @@
 //! Harnesses around the simulated hardware in `bridge_logic::sim`, shared by
 //! the scenario tests in `tests/`, the plot and the benchmark binaries.
 
+pub mod i2c_master;
 pub mod rig;
 pub mod svg;

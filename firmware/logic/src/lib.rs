@@ -14,7 +14,9 @@
 #![forbid(unsafe_code)]
 #![warn(missing_debug_implementations)]
 
+pub mod bridge;
 pub mod motion;
+pub mod persist;
 pub mod postep;
 pub mod powerstep;
 pub mod transport;

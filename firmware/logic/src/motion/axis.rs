@@ -39,10 +39,12 @@
 //!   read-back position and leaves the bridges as the chip put them.
 
 use super::profile::{Limits, Mode, Profile};
-use crate::powerstep::chain::Replies;
+use heapless::Deque;
+
+use crate::powerstep::chain::{Replies, MAX_COMMANDS};
 use crate::powerstep::commands::{Command, Direction};
 use crate::powerstep::fields::{DriveMode, StepMode, StepSel};
-use crate::powerstep::registers::{sign_extend_22, wrap_22, Register};
+use crate::powerstep::registers::{sign_extend_22, wrap_22, Access, Register};
 use crate::powerstep::status::Status;
 use crate::powerstep::status::ThermalStatus;
 use crate::powerstep::units;
@@ -188,6 +190,8 @@ enum AfterStop {
     Land,
     /// Make the current position zero (PoStep60 Set zero).
     Zero,
+    /// Stay where the chip stopped (after sleep): no landing move.
+    Hold,
 }
 
 /// One axis: profile generator + output stage for one chip of the chain.
@@ -222,10 +226,20 @@ pub struct Axis {
     backstop: (u32, u32),
     fault: Option<AxisFault>,
     tick: u32,
+    /// CONFIG register value written at setup (None: leave the chip's).
+    chip_config: Option<u16>,
+    /// Register writes (WR registers only) waiting for a free command slot.
+    writes: Deque<(Register, u32), 8>,
+    /// One-shot command to send while idle (wake up: HardStop).
+    idle_command: Option<Command>,
+    /// Bridges switched off on request: motion commands are not executed.
+    asleep: bool,
+    /// Chip resets / undervoltages detected since boot.
+    resets: u32,
 }
 
 /// Setup steps after which the chip is configured.
-const SETUP_STEPS: u8 = 3;
+const SETUP_STEPS: u8 = 4;
 
 impl Axis {
     pub fn new(cfg: AxisConfig, limits: Limits) -> Axis {
@@ -253,7 +267,19 @@ impl Axis {
             backstop: (0, 0),
             fault: None,
             tick: 0,
+            chip_config: None,
+            writes: Deque::new(),
+            idle_command: None,
+            asleep: false,
+            resets: 0,
         }
+    }
+
+    /// Write this CONFIG value at setup (e.g. SW_MODE = 1 so the switch input
+    /// only raises an event and the bridge decides what it means).
+    pub fn with_chip_config(mut self, config: u16) -> Axis {
+        self.chip_config = Some(config);
+        self
     }
 
     pub fn config(&self) -> AxisConfig {
@@ -288,6 +314,10 @@ impl Axis {
             _ => self.profile.position_round(),
         }
     }
+    /// Chip resets or undervoltages detected since boot (each one re-ran the setup).
+    pub fn chip_resets(&self) -> u32 {
+        self.resets
+    }
     /// Why the last motion was cut short, if it was (cleared by the next move).
     pub fn fault(&self) -> Option<AxisFault> {
         self.fault
@@ -299,15 +329,85 @@ impl Axis {
 
     // ------------------------------------------------------ motion commands
 
-    /// Move to `target` logical steps.
+    /// Move to `target` logical steps (ignored while asleep).
     pub fn move_to(&mut self, target: i64) {
+        if self.asleep {
+            return;
+        }
         self.fault = None;
         self.profile.move_to(target);
     }
-    /// Run at a signed speed (logical steps/s).
+    /// Run at a signed speed (logical steps/s; ignored while asleep).
     pub fn run_at(&mut self, steps_per_s: i32) {
+        if self.asleep {
+            return;
+        }
         self.fault = None;
         self.profile.run_at(steps_per_s);
+    }
+
+    /// Queue a write of a register that is writable at any time (KVAL/TVAL,
+    /// OCD_TH, …). A queued write to the same register is replaced. Returns
+    /// false for registers with access restrictions or when the queue is full.
+    pub fn write_register(&mut self, reg: Register, value: u32) -> bool {
+        if reg.access() != Access::Always {
+            return false;
+        }
+        if let Some(slot) = self.writes.iter_mut().find(|(r, _)| *r == reg) {
+            slot.1 = value;
+            return true;
+        }
+        self.writes.push_back((reg, value)).is_ok()
+    }
+
+    /// Switch the bridges off (PoStep60 sleep): stop at once, HardHiZ, hold
+    /// the position where the chip stopped. Motion commands are ignored until
+    /// [`Axis::wake`].
+    pub fn sleep(&mut self) {
+        self.asleep = true;
+        self.idle_command = None;
+        self.profile.stop_now();
+        self.stop_then(AfterStop::Hold, Command::HardHiZ);
+    }
+
+    /// Switch the bridges on again and hold (HardStop leaves HiZ without moving).
+    pub fn wake(&mut self) {
+        if self.asleep {
+            self.asleep = false;
+            self.idle_command = Some(Command::HardStop);
+        }
+    }
+
+    /// Leave HiZ and hold the position (HardStop), e.g. once the hold
+    /// current has been written. Ignored while asleep.
+    pub fn energize(&mut self) {
+        if !self.asleep {
+            self.idle_command = Some(Command::HardStop);
+        }
+    }
+
+    pub fn is_asleep(&self) -> bool {
+        self.asleep
+    }
+
+    /// Change the logical step mode. A moving axis stops at once; the
+    /// position is re-expressed in the new unit from the chip's microstep
+    /// (exactly when the new unit is not finer than a microstep, else the
+    /// step at or below), and the chip's ramps are rewritten at the next start.
+    pub fn set_logical_shift(&mut self, shift: u8) {
+        let shift = shift.min(MAX_LOGICAL_SHIFT);
+        if shift == self.cfg.logical_shift {
+            return;
+        }
+        self.profile.stop_now();
+        self.cfg.logical_shift = shift;
+        let here = self.actual_position();
+        self.profile.set_position(here);
+        self.chip_limits = (0, 0, 0);
+        self.backstop = (0, 0);
+        if !matches!(self.state, AxisState::Setup(_) | AxisState::Idle) && !self.asleep {
+            self.stop_then(AfterStop::Land, Command::HardStop);
+        }
     }
     /// Decelerate to a stop with the profile's deceleration.
     pub fn soft_stop(&mut self) {
@@ -394,6 +494,29 @@ impl Axis {
     /// Emit this tick's commands for the axis's chip (read-back first).
     /// `emit` returns false when the batch is full; the axis then retries next tick.
     pub fn plan(&mut self, mut emit: impl FnMut(Command) -> bool) {
+        let mut used = 0usize;
+        let mut counted = |cmd: Command| {
+            let ok = emit(cmd);
+            if ok {
+                used += 1;
+            }
+            ok
+        };
+        self.plan_commands(&mut counted);
+        // Spare slots carry queued register writes (currents, thresholds).
+        while used < MAX_COMMANDS {
+            let Some((reg, value)) = self.writes.pop_front() else {
+                break;
+            };
+            if !emit(Command::SetParam(reg, value)) {
+                let _ = self.writes.push_front((reg, value));
+                break;
+            }
+            used += 1;
+        }
+    }
+
+    fn plan_commands(&mut self, mut emit: impl FnMut(Command) -> bool) {
         self.tick = self.tick.wrapping_add(1);
         let read = if self.tick % 2 == 0 {
             Read::Position
@@ -437,12 +560,20 @@ impl Axis {
                 if let Some(cmd) = self.pending.take() {
                     emit(cmd);
                     self.sent_at = self.tick;
-                } else if !self.profile.is_settled() && self.after_stop == AfterStop::Land {
+                } else if !self.profile.is_settled()
+                    && self.after_stop == AfterStop::Land
+                    && !self.asleep
+                {
                     self.state = AxisState::Streaming;
                     self.stream(&mut emit);
                 } else if self.confirmed_stopped() {
                     // Hold exactly where the profile is (or make it zero).
                     match self.after_stop {
+                        AfterStop::Hold => {
+                            let here = self.actual_position();
+                            self.profile.set_position(here);
+                            self.state = AxisState::Idle;
+                        }
                         AfterStop::Zero => {
                             emit(Command::ResetPos);
                             self.chip_pos = 0;
@@ -471,7 +602,14 @@ impl Axis {
                     }
                 }
             }
-            AxisState::Idle => {}
+            AxisState::Idle => {
+                // Energize only once the queued current writes are out.
+                if self.writes.is_empty() {
+                    if let Some(cmd) = self.idle_command.take() {
+                        emit(cmd);
+                    }
+                }
+            }
         }
     }
 
@@ -553,15 +691,21 @@ impl Axis {
                 )),
             ],
             1 => [
+                self.chip_config
+                    .map(|c| Command::SetParam(Register::Config, u32::from(c))),
                 Some(Command::SetParam(Register::MaxSpeed, want.0)),
-                Some(Command::SetParam(Register::Acc, want.1)),
             ],
-            _ => [
+            2 => [
+                Some(Command::SetParam(Register::Acc, want.1)),
                 Some(Command::SetParam(Register::Dec, want.2)),
+            ],
+            // The bridges stay in HiZ until the first motion or `energize`.
+            _ => [
                 Some(Command::SetParam(
                     Register::AbsPos,
                     wrap_22(self.chip_pos as i32),
                 )),
+                None,
             ],
         }
     }
@@ -605,6 +749,7 @@ impl Axis {
             // Reset or undervoltage: positions read since the last clean
             // STATUS are not trustworthy; stop where the chip was then.
             self.fault = Some(AxisFault::ChipReset);
+            self.resets = self.resets.wrapping_add(1);
             self.chip_pos = self.pos_at_status;
             self.raw = None;
             self.error = 0;

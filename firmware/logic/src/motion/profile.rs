@@ -101,12 +101,19 @@ pub const fn acc_to_internal(steps_per_s2: u32, tick_us: u32) -> i64 {
     }
 }
 
-/// 2⁻³² steps/tick → steps/s (rounded toward zero).
+/// 2⁻³² steps/tick → steps/s, rounded to nearest (so a speed set in
+/// steps/s reads back as the same number).
 pub const fn speed_from_internal(v: i64, tick_us: u32) -> i64 {
     if tick_us == 0 {
         return 0;
     }
-    ((((v as i128) * 1_000_000) / (tick_us as i128)) >> VEL_FRAC) as i64
+    let x = ((v as i128) * 1_000_000) / (tick_us as i128);
+    let half = 1i128 << (VEL_FRAC - 1);
+    if x >= 0 {
+        ((x + half) >> VEL_FRAC) as i64
+    } else {
+        -((-x + half) >> VEL_FRAC) as i64
+    }
 }
 
 /// Twice the discrete braking distance from speed `v ≥ 0` at deceleration
@@ -227,7 +234,7 @@ impl Profile {
         self.vel
     }
 
-    /// Velocity in steps/s (toward zero).
+    /// Velocity in steps/s (nearest).
     pub fn velocity(&self) -> i64 {
         speed_from_internal(self.vel, self.tick_us)
     }

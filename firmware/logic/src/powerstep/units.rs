@@ -146,7 +146,16 @@ pub const fn tval_from_milliamps(ma: u32, sense_milliohm: u32) -> u8 {
 /// KVAL (voltage mode): amplitude = V_S · KVAL / 256. `bp` is basis points of
 /// V_S (10 000 = 100 %); KVAL = round(bp · 256 / 10 000), clamped to 255.
 pub const fn kval_from_basis_points(bp: u32) -> u8 {
-    clamp(div_round(bp as u64 * 256, 10_000), 255) as u8
+    kval_from_ratio(bp, 10_000)
+}
+
+/// KVAL for an amplitude of `num / den` of V_S (e.g. mV of phase voltage over
+/// mV of supply): round(num · 256 / den), clamped to 255; 0 when `den` is 0.
+pub const fn kval_from_ratio(num: u32, den: u32) -> u8 {
+    if den == 0 {
+        return 0;
+    }
+    clamp(div_round(num as u64 * 256, den as u64), 255) as u8
 }
 
 /// Inverse of [`kval_from_basis_points`] (rounded to nearest basis point).
@@ -305,6 +314,14 @@ mod tests {
         assert_eq!(kval_from_basis_points(1602), 0x29);
         assert_eq!(kval_from_basis_points(10_000), 255);
         assert_eq!(kval_to_basis_points(1), 39);
+    }
+
+    #[test]
+    fn kval_from_phase_voltage_over_supply() {
+        // 2.486 V of 24 V = 10.36 % → 26.52 → 27
+        assert_eq!(kval_from_ratio(2486, 24_000), 27);
+        assert_eq!(kval_from_ratio(30_000, 24_000), 255);
+        assert_eq!(kval_from_ratio(1, 0), 0);
     }
 
     #[test]

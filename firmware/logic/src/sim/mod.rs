@@ -7,9 +7,12 @@
 //! * [`chain`] — N chips wired as one daisy-chain shift register, usable as
 //!   the [`ChainBus`](crate::powerstep::ChainBus) of a
 //!   [`Chain`](crate::powerstep::Chain).
+//! * [`flash`] — NOR flash with power-cut injection, for the settings store.
 
 pub mod chain;
 pub mod device;
+pub mod flash;
 
 pub use chain::SimChain;
 pub use device::{Fault, Powerstep01, TICK_NS};
+pub use flash::{SimFlash, SimFlashError};

@@ -158,3 +158,164 @@ impl I2cSlave {
         }
     }
 }
+
+// ------------------------------------------------------------------------
+// The PoStep60 I2C command set (manual §8.3), little-endian on the wire.
+// ------------------------------------------------------------------------
+
+use crate::postep::{Current, Query, Request, Value};
+
+/// Extension: select which axis the following commands on this address go to
+/// (BYTE0 = axis index). Reading after it returns [selected axis, axis count].
+pub const SELECT_AXIS: u8 = 0x70;
+/// Extension: decelerate to a stop with the deceleration ramp (no data).
+pub const SOFT_STOP: u8 = 0x71;
+
+/// A decoded master write.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum I2cCommand {
+    /// Changes something; a later read returns zeros (loopback: the data).
+    Request(Request),
+    /// Selects what a later read returns.
+    Query(Query),
+    /// Extension 0x70 with the axis index.
+    SelectAxis(u8),
+    /// Reading after a bare 0x70: which axis is selected.
+    Selection,
+}
+
+/// Why a master write is not a command.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum I2cError {
+    /// Not a PoStep60 (or extension) command.
+    Unknown(u8),
+    /// Fewer data bytes than the command needs.
+    Short { command: u8, needed: u8 },
+}
+
+/// Builds a command from its data bytes.
+type Build = fn(&[u8]) -> I2cCommand;
+
+/// Data bytes after the command byte, and how to build the command.
+fn shape(cmd: u8) -> Option<(u8, Build)> {
+    use I2cCommand as C;
+    fn q(q: Query) -> I2cCommand {
+        I2cCommand::Query(q)
+    }
+    fn b(d: &[u8], i: usize) -> u8 {
+        d.get(i).copied().unwrap_or(0)
+    }
+    fn u16le(d: &[u8]) -> u16 {
+        u16::from_le_bytes([b(d, 0), b(d, 1)])
+    }
+    fn current(d: &[u8]) -> Current {
+        Current {
+            tq: b(d, 0),
+            ai: b(d, 1),
+        }
+    }
+    Some(match cmd {
+        0x01 => (4, |d| {
+            C::Request(Request::Loopback([b(d, 0), b(d, 1), b(d, 2), b(d, 3)]))
+        }),
+        0x03 => (1, |d| C::Request(Request::RunSleep(b(d, 0)))),
+        0x04 => (2, |d| {
+            C::Request(Request::SetAddress {
+                current: b(d, 0),
+                new: b(d, 1),
+            })
+        }),
+        0x05 => (1, |d| C::Request(Request::SetMode(b(d, 0)))),
+        0x06 => (6, |_| C::Request(Request::SetPwm)),
+        0x0A => (0, |_| q(Query::HwFwInfo)),
+        0x10 => (0, |_| q(Query::Voltage)),
+        0x11 => (0, |_| q(Query::Temperature)),
+        0x12 => (0, |_| q(Query::Pins)),
+        0x13 => (0, |_| q(Query::DriverStatus)),
+        0x14 => (0, |_| q(Query::DriverMode)),
+        0x20 => (0, |_| q(Query::FullScaleCurrent)),
+        0x21 => (0, |_| q(Query::IdleCurrent)),
+        0x22 => (0, |_| q(Query::OverheatCurrent)),
+        0x23 => (0, |_| q(Query::StepMode)),
+        0x24 => (0, |_| q(Query::TemperatureLimit)),
+        0x25 => (0, |_| q(Query::Faults)),
+        0x30 => (2, |d| C::Request(Request::SetFullScaleCurrent(current(d)))),
+        0x31 => (2, |d| C::Request(Request::SetIdleCurrent(current(d)))),
+        0x32 => (2, |d| C::Request(Request::SetOverheatCurrent(current(d)))),
+        0x33 => (1, |d| C::Request(Request::SetStepMode(b(d, 0)))),
+        0x34 => (1, |d| C::Request(Request::SetTemperatureLimit(b(d, 0)))),
+        0x35 => (0, |_| C::Request(Request::ResetFaults)),
+        0x3F => (0, |_| C::Request(Request::WriteSettings)),
+        0x40 => (0, |_| q(Query::Position)),
+        0x41 => (0, |_| q(Query::MaxSpeed)),
+        0x42 => (0, |_| q(Query::Acceleration)),
+        0x43 => (0, |_| q(Query::Deceleration)),
+        0x44 => (0, |_| q(Query::CurrentSpeed)),
+        0x45 => (0, |_| q(Query::RequestedSpeed)),
+        0x46 => (0, |_| q(Query::Invert)),
+        0x50 => (4, |d| {
+            C::Request(Request::SetPosition(i32::from_le_bytes([
+                b(d, 0),
+                b(d, 1),
+                b(d, 2),
+                b(d, 3),
+            ])))
+        }),
+        0x51 => (2, |d| C::Request(Request::SetMaxSpeed(u16le(d)))),
+        0x52 => (2, |d| C::Request(Request::SetAcceleration(u16le(d)))),
+        0x53 => (2, |d| C::Request(Request::SetDeceleration(u16le(d)))),
+        0x54 => (2, |d| C::Request(Request::SetRequestedSpeed(u16le(d)))),
+        0x55 => (1, |d| C::Request(Request::SetInvert(b(d, 0)))),
+        0x5E => (0, |_| C::Request(Request::SetZero)),
+        0x5F => (0, |_| C::Request(Request::Stop)),
+        0x60 => (0, |_| C::Request(Request::SystemReset)),
+        SELECT_AXIS => (0, |d| match d.first() {
+            Some(&axis) => C::SelectAxis(axis),
+            None => C::Selection,
+        }),
+        SOFT_STOP => (0, |_| C::Request(Request::SoftStop)),
+        _ => return None,
+    })
+}
+
+/// Decode a master write (`bytes[0]` is the command). Extra data bytes beyond
+/// what the command takes are ignored, as a PoStep60 does.
+pub fn decode(bytes: &[u8]) -> Result<I2cCommand, I2cError> {
+    let (&cmd, data) = bytes.split_first().ok_or(I2cError::Unknown(0))?;
+    let (needed, build) = shape(cmd).ok_or(I2cError::Unknown(cmd))?;
+    if data.len() < usize::from(needed) {
+        return Err(I2cError::Short {
+            command: cmd,
+            needed,
+        });
+    }
+    Ok(build(data))
+}
+
+/// Encode a query's value little-endian (manual §8.3); returns the length.
+pub fn encode(value: Value, out: &mut [u8; RESPONSE_MAX]) -> usize {
+    *out = [0; RESPONSE_MAX];
+    let (bytes, len): ([u8; 5], usize) = match value {
+        Value::U8(v) => ([v, 0, 0, 0, 0], 1),
+        Value::U16(v) => {
+            let [a, b] = v.to_le_bytes();
+            ([a, b, 0, 0, 0], 2)
+        }
+        Value::I16(v) => {
+            let [a, b] = v.to_le_bytes();
+            ([a, b, 0, 0, 0], 2)
+        }
+        Value::I32(v) => {
+            let [a, b, c, d] = v.to_le_bytes();
+            ([a, b, c, d, 0], 4)
+        }
+        Value::Current(c) => ([c.tq, c.ai, 0, 0, 0], 2),
+        Value::Bytes(b, n) => (b, usize::from(n).min(5)),
+    };
+    for (o, b) in out.iter_mut().zip(bytes.iter().take(len)) {
+        *o = *b;
+    }
+    len
+}

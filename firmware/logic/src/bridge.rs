@@ -1,0 +1,474 @@
+//! The bridge: the one object the firmware owns. It holds the chain, one
+//! axis and one emulated PoStep60 per chip, the settings and the bus-facing
+//! state, and offers `tick(now)` for the control loop and `on_*` / trait
+//! entry points for bus events.
+//!
+//! # What it guarantees
+//!
+//! * **Addresses** (SPEC.md): axis k answers `base + k`. On I2C the primary
+//!   own address (OAR1) is axis 0's and the secondary (OAR2) axis 1's; the
+//!   extension command 0x70 selects another axis for the following commands
+//!   on that address. An address change (0x04) sent to axis k moves the base
+//!   so that axis k gets the new address; it takes effect when the write has
+//!   ended and survives a reset only after Write settings.
+//! * **Bad input** on any bus changes nothing and is counted in
+//!   [`Diagnostics`]; reads after an unknown I2C command return zeros.
+//! * **Saving** never happens implicitly: Write settings marks a save as
+//!   pending, and [`Bridge::take_save`] hands out the image only once every
+//!   axis is at rest, because erasing flash stalls the CPU (and with it the
+//!   control loop) for up to seconds.
+//! * **Time** is passed in: `tick(now_ms)` once per control period.
+
+use heapless::Vec;
+
+use crate::motion::{Axis, AxisConfig, AxisGroup};
+use crate::postep::analog::{self, AnalogSample};
+use crate::postep::settings::{Serial, IMAGE_LEN};
+use crate::postep::{Board, CommandError, Device, Effect, Inputs, Query, Request, Settings, Value};
+use crate::powerstep::chain::{Chain, ChainBus, ChainError, MAX_DEVICES};
+use crate::transport::i2c::{self, I2cCommand, I2cError, I2cTarget, Which, Write, RESPONSE_MAX};
+
+/// Where the settings in use came from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum SettingsSource {
+    /// Loaded from the settings store.
+    Stored,
+    /// The store was empty: factory settings.
+    FactoryEmpty,
+    /// The store could not be read (corrupt, other format): factory settings.
+    FactoryUnreadable,
+}
+
+/// Counters of everything that went wrong or was refused.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Diagnostics {
+    pub i2c_unknown: u32,
+    pub i2c_short: u32,
+    /// Requests a device refused (wrong mode, asleep, faulted, ignored values…).
+    pub refused: u32,
+    pub chain_errors: u32,
+    pub saves: u32,
+    pub save_errors: u32,
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[derive(Debug, PartialEq)]
+    enum E {
+        Empty,
+        Corrupt,
+    }
+
+    #[test]
+    fn a_readable_image_is_used() {
+        let mut img = [0u8; IMAGE_LEN];
+        let mut s = Settings::FACTORY;
+        s.base_address = 9;
+        s.to_image(&mut img);
+        let got = boot_settings::<E>(Ok(&img[..]), |e| *e == E::Empty);
+        assert_eq!(got, (s, SettingsSource::Stored));
+    }
+
+    #[test]
+    fn an_empty_store_boots_factory_settings() {
+        let got = boot_settings(Err(E::Empty), |e| *e == E::Empty);
+        assert_eq!(got, (Settings::FACTORY, SettingsSource::FactoryEmpty));
+    }
+
+    #[test]
+    fn an_unreadable_store_or_image_boots_factory_settings_and_says_so() {
+        let got = boot_settings(Err(E::Corrupt), |e| *e == E::Empty);
+        assert_eq!(got, (Settings::FACTORY, SettingsSource::FactoryUnreadable));
+        let got = boot_settings::<E>(Ok(&[9, 9, 9][..]), |e| *e == E::Empty);
+        assert_eq!(got, (Settings::FACTORY, SettingsSource::FactoryUnreadable));
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Port {
+    /// Axis the commands on this address go to.
+    axis: u8,
+    /// What a read returns.
+    last: Option<I2cCommand>,
+}
+
+/// Settings to boot with, from what the settings store returned: the
+/// stored image if it is readable, else the factory settings, and where they
+/// came from (so a bad store is reported, not silently replaced).
+pub fn boot_settings<E>(
+    loaded: Result<&[u8], E>,
+    empty: impl Fn(&E) -> bool,
+) -> (Settings, SettingsSource) {
+    match loaded {
+        Ok(image) => match Settings::from_image(image) {
+            Ok(s) => (s, SettingsSource::Stored),
+            Err(_) => (Settings::FACTORY, SettingsSource::FactoryUnreadable),
+        },
+        Err(e) if empty(&e) => (Settings::FACTORY, SettingsSource::FactoryEmpty),
+        Err(_) => (Settings::FACTORY, SettingsSource::FactoryUnreadable),
+    }
+}
+
+/// Highest Modbus server id.
+pub const MODBUS_ID_MAX: u8 = 247;
+/// Highest I2C address a PoStep60 accepts.
+pub const I2C_ADDRESS_MAX: u8 = 127;
+
+/// The bridge.
+pub struct Bridge<B: ChainBus> {
+    chain: Chain<B>,
+    group: AxisGroup,
+    devices: Vec<Device, MAX_DEVICES>,
+    board: Board,
+    base_address: u8,
+    serial: Serial,
+    supply: u16,
+    temperature: u16,
+    ports: [Port; 2],
+    save_pending: bool,
+    reset_pending: bool,
+    addresses_changed: bool,
+    chain_error: Option<ChainError<B::Error>>,
+    source: SettingsSource,
+    pub diag: Diagnostics,
+}
+
+impl<B: ChainBus> core::fmt::Debug for Bridge<B> {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("Bridge")
+            .field("axes", &self.devices.len())
+            .field("base_address", &self.base_address)
+            .field("diag", &self.diag)
+            .finish_non_exhaustive()
+    }
+}
+
+impl<B: ChainBus> Bridge<B> {
+    /// Detect the chain on `bus` and set up one axis per chip with
+    /// `settings`. If the chain cannot be detected the bridge runs with no
+    /// axes and [`Bridge::chain_error`] says why.
+    pub fn new(
+        bus: B,
+        board: Board,
+        settings: Settings,
+        source: SettingsSource,
+        tick_us: u32,
+    ) -> Bridge<B> {
+        let mut chain = Chain::new(bus);
+        let (n, chain_error) = match chain.detect() {
+            Ok(n) => (n, None),
+            Err(e) => (0, Some(e)),
+        };
+        let mut group = AxisGroup::new();
+        let mut devices = Vec::new();
+        for s in settings.axes.iter().take(n) {
+            let cfg = AxisConfig {
+                tick_us,
+                logical_shift: s.step_mode,
+                step: board.step,
+                drive: board.drive,
+            };
+            let device = Device::new(*s);
+            let mut axis =
+                Axis::new(cfg, device.limits()).with_chip_config(board.config_register());
+            axis.energize();
+            let _ = group.push(axis);
+            let _ = devices.push(device);
+        }
+        Bridge {
+            chain,
+            group,
+            devices,
+            board,
+            base_address: settings.base_address,
+            serial: settings.serial,
+            supply: 0,
+            temperature: 0,
+            ports: [
+                Port {
+                    axis: 0,
+                    last: None,
+                },
+                Port {
+                    axis: if n > 1 { 1 } else { 0 },
+                    last: None,
+                },
+            ],
+            save_pending: false,
+            reset_pending: false,
+            addresses_changed: false,
+            chain_error,
+            source,
+            diag: Diagnostics::default(),
+        }
+    }
+
+    /// Number of axes (= detected chips).
+    pub fn axes(&self) -> usize {
+        self.devices.len()
+    }
+
+    pub fn chain_error(&self) -> Option<&ChainError<B::Error>> {
+        self.chain_error.as_ref()
+    }
+
+    pub fn settings_source(&self) -> SettingsSource {
+        self.source
+    }
+
+    pub fn chain(&self) -> &Chain<B> {
+        &self.chain
+    }
+
+    pub fn chain_mut(&mut self) -> &mut Chain<B> {
+        &mut self.chain
+    }
+
+    pub fn axis(&self, k: usize) -> Option<&Axis> {
+        self.group.axis(k)
+    }
+
+    pub fn device(&self, k: usize) -> Option<&Device> {
+        self.devices.get(k)
+    }
+
+    pub fn board(&self) -> &Board {
+        &self.board
+    }
+
+    /// Address base: axis k answers `base + k`.
+    pub fn base_address(&self) -> u8 {
+        self.base_address
+    }
+
+    pub fn serial(&self) -> Serial {
+        self.serial
+    }
+
+    /// I2C own addresses: (OAR1 for axis 0, OAR2 for axis 1 if there is one
+    /// and it is a valid 7-bit address).
+    pub fn i2c_addresses(&self) -> (u8, Option<u8>) {
+        let second = self
+            .base_address
+            .checked_add(1)
+            .filter(|a| *a <= I2C_ADDRESS_MAX && self.axes() > 1);
+        (self.base_address, second)
+    }
+
+    /// True once after the addresses changed (reprogram the I2C own addresses).
+    pub fn take_address_change(&mut self) -> bool {
+        core::mem::take(&mut self.addresses_changed)
+    }
+
+    /// True once after System reset was requested (reset after the reply).
+    pub fn take_reset(&mut self) -> bool {
+        core::mem::take(&mut self.reset_pending)
+    }
+
+    /// The settings image to store, once a save is pending and every axis is
+    /// at rest. Report the outcome with [`Bridge::saved`].
+    pub fn take_save(&mut self, out: &mut [u8; IMAGE_LEN]) -> bool {
+        if !self.save_pending || !self.group.is_settled() {
+            return false;
+        }
+        self.save_pending = false;
+        self.settings().to_image(out);
+        true
+    }
+
+    /// Outcome of a save handed out by [`Bridge::take_save`].
+    pub fn saved(&mut self, ok: bool) {
+        if ok {
+            self.diag.saves = self.diag.saves.saturating_add(1);
+        } else {
+            self.diag.save_errors = self.diag.save_errors.saturating_add(1);
+        }
+    }
+
+    /// Current settings of every axis (what Write settings stores).
+    pub fn settings(&self) -> Settings {
+        let mut s = Settings {
+            base_address: self.base_address,
+            serial: self.serial,
+            ..Settings::FACTORY
+        };
+        for (slot, d) in s.axes.iter_mut().zip(self.devices.iter()) {
+            *slot = d.settings;
+        }
+        s
+    }
+
+    /// Status LED at `now_ms`: a 1 Hz heartbeat when all is well; a fast
+    /// 5 Hz blink when the chain was not detected or the stored settings could
+    /// not be read (the bridge runs on factory settings then).
+    pub fn led_on(&self, now_ms: u64) -> bool {
+        let trouble = self.chain_error.is_some()
+            || self.source == SettingsSource::FactoryUnreadable
+            || self.diag.save_errors > 0;
+        let period = if trouble { 200 } else { 1000 };
+        now_ms % period < period / 2
+    }
+
+    /// New ADC samples (supply, temperature).
+    pub fn on_analog(&mut self, sample: AnalogSample) {
+        self.supply = analog::supply_units(sample, self.board.analog);
+        self.temperature = analog::temperature_units(sample, self.board.analog);
+    }
+
+    /// New BIN button levels of one axis.
+    pub fn on_inputs(&mut self, k: usize, inputs: Inputs) {
+        if let (Some(d), Some(a)) = (self.devices.get_mut(k), self.group.axis_mut(k)) {
+            d.set_inputs(inputs, a);
+        }
+    }
+
+    /// One control tick at `now_ms`.
+    pub fn tick(&mut self, now_ms: u64) {
+        for (k, d) in self.devices.iter_mut().enumerate() {
+            if let Some(a) = self.group.axis_mut(k) {
+                d.tick(now_ms, a, &self.board, self.temperature);
+            }
+        }
+        if !self.devices.is_empty() && self.group.tick(&mut self.chain).is_err() {
+            self.diag.chain_errors = self.diag.chain_errors.saturating_add(1);
+        }
+    }
+
+    /// Execute a request on axis `k` (any bus).
+    pub fn request(&mut self, k: usize, req: Request) -> Result<Effect, CommandError> {
+        let (Some(d), Some(a)) = (self.devices.get_mut(k), self.group.axis_mut(k)) else {
+            return Err(CommandError::Unsupported);
+        };
+        let result = d.apply(req, a, &self.board);
+        match result {
+            Ok(Effect::SaveSettings) => self.save_pending = true,
+            Ok(Effect::SystemReset) => self.reset_pending = true,
+            Ok(Effect::SetAddress { current, new }) => {
+                if let Err(e) = self.change_address(k, current, new) {
+                    self.diag.refused = self.diag.refused.saturating_add(1);
+                    return Err(e);
+                }
+            }
+            Ok(Effect::None) => {}
+            Err(_) => self.diag.refused = self.diag.refused.saturating_add(1),
+        }
+        result
+    }
+
+    /// Answer a query for axis `k` (any bus); `None` for a missing axis.
+    pub fn query(&self, k: usize, q: Query) -> Option<Value> {
+        let d = self.devices.get(k)?;
+        let a = self.group.axis(k)?;
+        Some(d.query(q, a, &self.board, self.supply, self.temperature))
+    }
+
+    /// The address axis `k` answers.
+    pub fn address_of(&self, k: usize) -> Option<u8> {
+        u8::try_from(k)
+            .ok()
+            .and_then(|k| self.base_address.checked_add(k))
+    }
+
+    /// The axis answering `address`, if any.
+    pub fn axis_at(&self, address: u8) -> Option<usize> {
+        let k = usize::from(address.checked_sub(self.base_address)?);
+        (k < self.axes()).then_some(k)
+    }
+
+    fn change_address(&mut self, k: usize, current: u8, new: u8) -> Result<(), CommandError> {
+        let n = self.axes();
+        if self.address_of(k) != Some(current) || !(1..=I2C_ADDRESS_MAX).contains(&new) {
+            return Err(CommandError::BadAddress);
+        }
+        let k = u8::try_from(k).map_err(|_| CommandError::BadAddress)?;
+        let base = new
+            .checked_sub(k)
+            .filter(|b| *b >= 1)
+            .ok_or(CommandError::BadAddress)?;
+        let last = usize::from(base) + n.saturating_sub(1);
+        if last > usize::from(MODBUS_ID_MAX) {
+            return Err(CommandError::BadAddress);
+        }
+        if base != self.base_address {
+            self.base_address = base;
+            self.addresses_changed = true;
+        }
+        Ok(())
+    }
+
+    fn port(which: Which) -> usize {
+        match which {
+            Which::Primary => 0,
+            Which::Secondary => 1,
+        }
+    }
+}
+
+impl<B: ChainBus> I2cTarget for Bridge<B> {
+    fn i2c_write(&mut self, w: Write<'_>) {
+        let p = Self::port(w.which);
+        let decoded = i2c::decode(w.bytes);
+        let axis = self
+            .ports
+            .get(p)
+            .map(|port| usize::from(port.axis))
+            .unwrap_or(0);
+        let last = match decoded {
+            Err(I2cError::Unknown(_)) => {
+                self.diag.i2c_unknown = self.diag.i2c_unknown.saturating_add(1);
+                None
+            }
+            Err(I2cError::Short { .. }) => {
+                self.diag.i2c_short = self.diag.i2c_short.saturating_add(1);
+                None
+            }
+            Ok(I2cCommand::SelectAxis(k)) => {
+                if usize::from(k) < self.axes() {
+                    if let Some(port) = self.ports.get_mut(p) {
+                        port.axis = k;
+                    }
+                } else {
+                    self.diag.refused = self.diag.refused.saturating_add(1);
+                }
+                Some(I2cCommand::Selection)
+            }
+            Ok(I2cCommand::Request(r)) => {
+                // I2C has no error reply: a refused request is only counted.
+                let _ = self.request(axis, r);
+                Some(I2cCommand::Request(r))
+            }
+            Ok(other) => Some(other),
+        };
+        if let Some(port) = self.ports.get_mut(p) {
+            port.last = last;
+        }
+    }
+
+    fn i2c_read(&mut self, which: Which, out: &mut [u8; RESPONSE_MAX]) -> usize {
+        *out = [0; RESPONSE_MAX];
+        let Some(port) = self.ports.get(Self::port(which)).copied() else {
+            return 0;
+        };
+        let axis = usize::from(port.axis);
+        match port.last {
+            Some(I2cCommand::Query(q)) => self
+                .query(axis, q)
+                .map(|v| i2c::encode(v, out))
+                .unwrap_or(0),
+            Some(I2cCommand::Request(Request::Loopback(_))) => self
+                .query(axis, Query::Loopback)
+                .map(|v| i2c::encode(v, out))
+                .unwrap_or(0),
+            Some(I2cCommand::Selection) => {
+                out[0] = port.axis;
+                out[1] = self.axes() as u8;
+                2
+            }
+            _ => 0,
+        }
+    }
+}

@@ -1,0 +1,599 @@
+//! One emulated PoStep60: the behaviour behind the command set of manual §8.3
+//! and §9.3, for one axis, whatever bus the command came on.
+//!
+//! # What it guarantees
+//!
+//! * **Commands** arrive typed ([`Request`], [`Query`]); transports only
+//!   translate bytes. A request that cannot be performed returns a
+//!   [`CommandError`] and changes nothing (I2C ignores and counts it, Modbus
+//!   answers an exception).
+//! * **Mode gating** (manual 8.3.32, 8.3.36): Set position only in position
+//!   or BINx mode, Set requested speed / invert only in auto run. Set driver
+//!   mode accepts 1, 4, 5, 6 (SPEC.md); 1 needs a board that routes STEP to
+//!   the chips (the reference board does not: [`CommandError::Unsupported`]);
+//!   3 (DC) and Set PWM are always unsupported: a powerSTEP01 cannot drive a
+//!   DC motor.
+//! * **Run/Sleep**: 0xDA runs, 0x0F sleeps (bridges off, motion ignored),
+//!   anything else is ignored. The bridge starts every axis running, with the
+//!   bridges in HiZ until the first motion.
+//! * **Faults** (0x25) are latched from the chip's STATUS: OTS ← thermal
+//!   bridge/device shutdown, AOCP and BOCP ← OCD (the chip has one detector
+//!   for both bridges), UVLO ← UVLO or ADC UVLO, STD ← stall now, STDLAT ←
+//!   stall since the last reset. APDF/BPDF never set. Faults 0–5 stop the axis
+//!   and refuse motion until Reset faults (0x35); OTS stays while the chip is
+//!   still hot; STD/STDLAT do not stop anything.
+//! * **Currents**: full-scale current while active; the hold current drops to
+//!   the idle current 10 s after the last motion (driver status 3); above the
+//!   temperature limit run and hold currents drop to the overheat current
+//!   (driver status 4) until the temperature is 2 °C below the limit.
+//! * **End switch** (when enabled): any change of the switch level stops the
+//!   axis at once; a new target in either direction is then accepted
+//!   (manual 7.5.1). NO/NC only changes what the pin status reports.
+//! * **BINx** (mode 5): a press (falling edge) of BIN1/BIN2 moves by BIN1/BIN2
+//!   steps from the current target.
+//! * **Auto run** (mode 6): at power-up the axis runs at max speed; Set
+//!   requested speed runs at that speed; invert flips the direction; Stop
+//!   stops until the next requested speed.
+
+use super::board::Board;
+use super::current::Current;
+use super::settings::{AxisSettings, DriverMode, TEMPERATURE_LIMIT_MAX};
+use crate::motion::{Axis, AxisState, Limits};
+use crate::powerstep::registers::Register;
+use crate::powerstep::status::ThermalStatus;
+
+/// Idle current after this long without motion (manual 7.2).
+pub const IDLE_AFTER_MS: u64 = 10_000;
+/// Overheat ends this many °C below the limit.
+pub const OVERHEAT_HYSTERESIS_C: u16 = 2;
+
+/// Fault bits of 0x25 (manual 8.3.17).
+pub mod fault {
+    pub const OTS: u8 = 1 << 0;
+    pub const AOCP: u8 = 1 << 1;
+    pub const BOCP: u8 = 1 << 2;
+    pub const APDF: u8 = 1 << 3;
+    pub const BPDF: u8 = 1 << 4;
+    pub const UVLO: u8 = 1 << 5;
+    pub const STD: u8 = 1 << 6;
+    pub const STDLAT: u8 = 1 << 7;
+    /// Faults that stop the axis until reset.
+    pub const STOPPING: u8 = OTS | AOCP | BOCP | APDF | BPDF | UVLO;
+}
+
+/// Driver status (manual 8.3.10).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DriverStatus {
+    Sleep = 1,
+    Active = 2,
+    Idle = 3,
+    Overheated = 4,
+}
+
+/// A PoStep60 command that changes something.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Request {
+    /// 0x01 (I2C): remember 4 bytes for the next read.
+    Loopback([u8; 4]),
+    /// 0x03: 0xDA run, 0x0F sleep.
+    RunSleep(u8),
+    /// 0x04: `current` must be the address this axis answers now.
+    SetAddress {
+        current: u8,
+        new: u8,
+    },
+    /// 0x05.
+    SetMode(u8),
+    /// 0x06 (DC motor PWM).
+    SetPwm,
+    SetFullScaleCurrent(Current),
+    SetIdleCurrent(Current),
+    SetOverheatCurrent(Current),
+    /// 0x33: 0..=8, others ignored.
+    SetStepMode(u8),
+    /// 0x34: °C.
+    SetTemperatureLimit(u8),
+    ResetFaults,
+    /// 0x3F.
+    WriteSettings,
+    /// 0x50.
+    SetPosition(i32),
+    SetMaxSpeed(u16),
+    SetAcceleration(u16),
+    SetDeceleration(u16),
+    /// 0x54.
+    SetRequestedSpeed(u16),
+    /// 0x55: bit 0.
+    SetInvert(u8),
+    /// 0x5E.
+    SetZero,
+    /// 0x5F: immediate stop, no ramp.
+    Stop,
+    /// 0x60.
+    SystemReset,
+    /// Extension: decelerate to a stop with the deceleration ramp.
+    SoftStop,
+}
+
+/// A PoStep60 read.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Query {
+    Loopback,
+    HwFwInfo,
+    Voltage,
+    Temperature,
+    Pins,
+    DriverStatus,
+    DriverMode,
+    FullScaleCurrent,
+    IdleCurrent,
+    OverheatCurrent,
+    StepMode,
+    TemperatureLimit,
+    Faults,
+    Position,
+    MaxSpeed,
+    Acceleration,
+    Deceleration,
+    CurrentSpeed,
+    RequestedSpeed,
+    Invert,
+}
+
+/// The value of a query; transports choose the byte order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Value {
+    U8(u8),
+    U16(u16),
+    /// Signed 16-bit (current speed).
+    I16(i16),
+    I32(i32),
+    Current(Current),
+    /// Fixed byte sequences (HW/FW info, loopback).
+    Bytes([u8; 5], u8),
+}
+
+/// Why a request was not performed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum CommandError {
+    /// Not in this driver mode (manual's gating).
+    WrongMode,
+    /// The axis is asleep (0x03 0x0F).
+    Asleep,
+    /// A fault that stops the axis is latched (reset faults first).
+    Faulted,
+    /// A value the manual says is ignored.
+    Ignored,
+    /// The bridge cannot do this (DC motor, STEP not routed on this board).
+    Unsupported,
+    /// Address change: BYTE0 is not this axis's address, or the new one is invalid.
+    BadAddress,
+}
+
+/// What the bridge must do after a request succeeded.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Effect {
+    None,
+    /// Store every axis's settings (deferred until all axes are at rest).
+    SaveSettings,
+    /// Restart the bridge after the reply.
+    SystemReset,
+    /// The address base changes (handled by the bridge).
+    SetAddress {
+        current: u8,
+        new: u8,
+    },
+}
+
+/// Firmware version reported by 0x0A (the crate's major.minor).
+pub const FW_VERSION: (u8, u8) = (0, 1);
+/// PoStep60 driver id (0x0A byte 0).
+pub const DRIVER_ID: u8 = 0x41;
+
+/// Inputs the bridge measures for every axis.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Inputs {
+    /// BIN1 / BIN2 buttons pressed (buttons to GND).
+    pub bin1: bool,
+    pub bin2: bool,
+}
+
+/// One PoStep60.
+#[derive(Clone, Debug)]
+pub struct Device {
+    pub settings: AxisSettings,
+    running: bool,
+    faults: u8,
+    last_motion_ms: u64,
+    idle: bool,
+    overheated: bool,
+    switch_closed: Option<bool>,
+    inputs: Inputs,
+    loopback: [u8; 4],
+    /// Current registers as last queued (hold, run).
+    applied: Option<(u32, u32)>,
+    auto_started: bool,
+    /// Chip resets seen so far (a new one latches UVLO).
+    resets_seen: u32,
+    /// Requests refused or ignored since boot (diagnostics).
+    pub refused: u32,
+}
+
+impl Device {
+    pub fn new(settings: AxisSettings) -> Device {
+        Device {
+            settings,
+            running: true,
+            faults: 0,
+            last_motion_ms: 0,
+            idle: false,
+            overheated: false,
+            switch_closed: None,
+            inputs: Inputs::default(),
+            loopback: [0; 4],
+            applied: None,
+            auto_started: false,
+            resets_seen: 0,
+            refused: 0,
+        }
+    }
+
+    /// The profile limits of the settings.
+    pub fn limits(&self) -> Limits {
+        Limits {
+            max_speed: self.settings.max_speed,
+            acc: self.settings.acc,
+            dec: self.settings.dec,
+        }
+    }
+
+    pub fn status(&self) -> DriverStatus {
+        if !self.running {
+            DriverStatus::Sleep
+        } else if self.overheated {
+            DriverStatus::Overheated
+        } else if self.idle {
+            DriverStatus::Idle
+        } else {
+            DriverStatus::Active
+        }
+    }
+
+    pub fn faults(&self) -> u8 {
+        self.faults
+    }
+
+    /// One control tick: faults, idle and overheat currents, end switch,
+    /// auto run start. `temperature` in 1/8 °C.
+    pub fn tick(&mut self, now_ms: u64, axis: &mut Axis, board: &Board, temperature: u16) {
+        if axis.chip_resets() != self.resets_seen {
+            // An undervoltage or reset of the chip: the axis has already
+            // stopped and re-configured the chip.
+            self.resets_seen = axis.chip_resets();
+            self.faults |= fault::UVLO;
+        }
+        let configured = !matches!(axis.state(), AxisState::Setup(_));
+        if configured {
+            self.latch_faults(axis);
+            self.watch_end_switch(axis);
+            if !self.auto_started {
+                self.auto_started = true;
+                if self.settings.mode == DriverMode::AutoRun && self.running {
+                    // Power-up: max speed applies, not the requested speed (7.5.3).
+                    let v = i32::try_from(self.settings.max_speed).unwrap_or(i32::MAX);
+                    self.run_auto(axis, v);
+                }
+            }
+        }
+        if !axis.is_settled() {
+            self.last_motion_ms = now_ms;
+        }
+        self.idle = now_ms.saturating_sub(self.last_motion_ms) >= IDLE_AFTER_MS;
+        let celsius = temperature / 8;
+        let limit = u16::from(self.settings.temperature_limit);
+        if celsius > limit {
+            self.overheated = true;
+        } else if celsius + OVERHEAT_HYSTERESIS_C <= limit {
+            self.overheated = false;
+        }
+        self.apply_currents(axis, board);
+    }
+
+    /// New BIN button levels (mode 5: a press moves).
+    pub fn set_inputs(&mut self, inputs: Inputs, axis: &mut Axis) {
+        let pressed1 = inputs.bin1 && !self.inputs.bin1;
+        let pressed2 = inputs.bin2 && !self.inputs.bin2;
+        self.inputs = inputs;
+        if self.settings.mode != DriverMode::BinButtons || self.blocked().is_err() {
+            return;
+        }
+        for (pressed, steps) in [
+            (pressed1, self.settings.bin1_steps),
+            (pressed2, self.settings.bin2_steps),
+        ] {
+            if pressed {
+                let target = axis.required_position().saturating_add(i64::from(steps));
+                axis.move_to(target);
+            }
+        }
+    }
+
+    fn latch_faults(&mut self, axis: &mut Axis) {
+        let s = axis.status();
+        let mut f = 0;
+        if matches!(
+            s.thermal(),
+            ThermalStatus::BridgeShutdown | ThermalStatus::DeviceShutdown
+        ) {
+            f |= fault::OTS;
+        }
+        if s.overcurrent() {
+            f |= fault::AOCP | fault::BOCP;
+        }
+        if s.uvlo() || s.uvlo_adc() {
+            f |= fault::UVLO;
+        }
+        let newly = f & !self.faults & fault::STOPPING;
+        self.faults |= f;
+        // STD follows the stall flag; STDLAT keeps it until Reset faults.
+        if s.stalled() {
+            self.faults |= fault::STD | fault::STDLAT;
+        } else {
+            self.faults &= !fault::STD;
+        }
+        // OTS clears by itself once the chip has cooled down.
+        if !matches!(
+            s.thermal(),
+            ThermalStatus::BridgeShutdown | ThermalStatus::DeviceShutdown
+        ) {
+            self.faults &= !fault::OTS;
+        }
+        if newly != 0 && !axis.is_settled() {
+            axis.stop_now();
+        }
+    }
+
+    fn watch_end_switch(&mut self, axis: &mut Axis) {
+        let closed = axis.status().switch_closed();
+        let changed = self.switch_closed.is_some_and(|prev| prev != closed);
+        self.switch_closed = Some(closed);
+        if changed && self.settings.end_switch {
+            axis.stop_now();
+        }
+    }
+
+    fn apply_currents(&mut self, axis: &mut Axis, board: &Board) {
+        let ma = |c: Current| c.milliamps().unwrap_or(0);
+        let (hold, run) = if self.overheated {
+            let o = ma(self.settings.overheat);
+            (o, o)
+        } else if self.idle {
+            (ma(self.settings.idle), ma(self.settings.full_scale))
+        } else {
+            let f = ma(self.settings.full_scale);
+            (f, f)
+        };
+        let regs = (board.current_register(hold), board.current_register(run));
+        if self.applied != Some(regs) {
+            let ok = axis.write_register(Register::KvalHold, regs.0)
+                && axis.write_register(Register::KvalRun, regs.1)
+                && axis.write_register(Register::KvalAcc, regs.1)
+                && axis.write_register(Register::KvalDec, regs.1);
+            if ok {
+                self.applied = Some(regs);
+            }
+        }
+    }
+
+    fn blocked(&self) -> Result<(), CommandError> {
+        if !self.running {
+            Err(CommandError::Asleep)
+        } else if self.faults & fault::STOPPING != 0 {
+            Err(CommandError::Faulted)
+        } else {
+            Ok(())
+        }
+    }
+
+    fn run_auto(&mut self, axis: &mut Axis, speed: i32) {
+        let v = if self.settings.invert { -speed } else { speed };
+        axis.run_at(v);
+    }
+
+    fn refuse(&mut self, e: CommandError) -> Result<Effect, CommandError> {
+        self.refused = self.refused.saturating_add(1);
+        Err(e)
+    }
+
+    /// Execute a request. `board` says what the hardware can do.
+    pub fn apply(
+        &mut self,
+        req: Request,
+        axis: &mut Axis,
+        board: &Board,
+    ) -> Result<Effect, CommandError> {
+        let limit = board.current_limit_ma;
+        match req {
+            Request::Loopback(b) => self.loopback = b,
+            Request::RunSleep(0xDA) => {
+                self.running = true;
+                axis.wake();
+            }
+            Request::RunSleep(0x0F) => {
+                self.running = false;
+                axis.sleep();
+            }
+            Request::RunSleep(_) => return self.refuse(CommandError::Ignored),
+            Request::SetAddress { current, new } => {
+                return Ok(Effect::SetAddress { current, new });
+            }
+            Request::SetMode(code) => match DriverMode::from_code(code) {
+                Some(DriverMode::External) if !board.step_dir_routed => {
+                    return self.refuse(CommandError::Unsupported)
+                }
+                Some(DriverMode::DcMotor) => return self.refuse(CommandError::Unsupported),
+                Some(
+                    m @ (DriverMode::External
+                    | DriverMode::Position
+                    | DriverMode::BinButtons
+                    | DriverMode::AutoRun),
+                ) => {
+                    let was = self.settings.mode;
+                    self.settings.mode = m;
+                    if was == DriverMode::AutoRun && m != DriverMode::AutoRun {
+                        axis.soft_stop();
+                    }
+                    if m == DriverMode::AutoRun && was != DriverMode::AutoRun && self.running {
+                        self.run_auto(axis, i32::from(self.settings.requested_speed));
+                    }
+                }
+                _ => return self.refuse(CommandError::Ignored),
+            },
+            Request::SetPwm => return self.refuse(CommandError::Unsupported),
+            Request::SetFullScaleCurrent(c) => self.settings.full_scale = c.clamped(limit),
+            Request::SetIdleCurrent(c) => self.settings.idle = c.clamped(limit),
+            Request::SetOverheatCurrent(c) => self.settings.overheat = c.clamped(limit),
+            Request::SetStepMode(m) if m <= 8 => {
+                self.settings.step_mode = m;
+                axis.set_logical_shift(m);
+            }
+            Request::SetStepMode(_) => return self.refuse(CommandError::Ignored),
+            Request::SetTemperatureLimit(t) => {
+                self.settings.temperature_limit = t.min(TEMPERATURE_LIMIT_MAX)
+            }
+            // OTS cannot be cleared while the chip is hot: it is re-latched
+            // from STATUS at the next tick if so.
+            Request::ResetFaults => self.faults = 0,
+            Request::WriteSettings => return Ok(Effect::SaveSettings),
+            Request::SetPosition(p) => {
+                if !matches!(
+                    self.settings.mode,
+                    DriverMode::Position | DriverMode::BinButtons
+                ) {
+                    return self.refuse(CommandError::WrongMode);
+                }
+                if let Err(e) = self.blocked() {
+                    return self.refuse(e);
+                }
+                axis.move_to(i64::from(p));
+            }
+            Request::SetMaxSpeed(v) => {
+                self.settings.max_speed = u32::from(v);
+                axis.set_limits(self.limits());
+            }
+            Request::SetAcceleration(v) => {
+                self.settings.acc = u32::from(v);
+                axis.set_limits(self.limits());
+            }
+            Request::SetDeceleration(v) => {
+                self.settings.dec = u32::from(v);
+                axis.set_limits(self.limits());
+            }
+            Request::SetRequestedSpeed(v) => {
+                if self.settings.mode != DriverMode::AutoRun {
+                    return self.refuse(CommandError::WrongMode);
+                }
+                if let Err(e) = self.blocked() {
+                    return self.refuse(e);
+                }
+                self.settings.requested_speed = v;
+                self.run_auto(axis, i32::from(v));
+            }
+            Request::SetInvert(b) => {
+                if self.settings.mode != DriverMode::AutoRun {
+                    return self.refuse(CommandError::WrongMode);
+                }
+                self.settings.invert = b & 1 != 0;
+                if self.blocked().is_ok() && !axis.profile().is_settled() {
+                    let v = i32::from(self.settings.requested_speed);
+                    self.run_auto(axis, v);
+                }
+            }
+            Request::SetZero => axis.set_zero(),
+            Request::Stop => axis.stop_now(),
+            Request::SoftStop => axis.soft_stop(),
+            Request::SystemReset => return Ok(Effect::SystemReset),
+        }
+        Ok(Effect::None)
+    }
+
+    /// Answer a query. `supply` and `temperature` are the bridge's
+    /// measurements in PoStep60 units.
+    pub fn query(
+        &self,
+        q: Query,
+        axis: &Axis,
+        board: &Board,
+        supply: u16,
+        temperature: u16,
+    ) -> Value {
+        let s = &self.settings;
+        let sat16 = |v: u32| Value::U16(u16::try_from(v).unwrap_or(u16::MAX));
+        match q {
+            Query::Loopback => {
+                let [a, b, c, d] = self.loopback;
+                Value::Bytes([a, b, c, d, 0], 4)
+            }
+            Query::HwFwInfo => Value::Bytes(
+                [
+                    DRIVER_ID,
+                    board.hw_version.0,
+                    board.hw_version.1,
+                    FW_VERSION.0,
+                    FW_VERSION.1,
+                ],
+                5,
+            ),
+            Query::Voltage => Value::U16(supply),
+            Query::Temperature => Value::U16(temperature),
+            Query::Pins => {
+                // bit 0 bootloader override (always high), 1 enable (run),
+                // 4/5 BIN1/BIN2 level (buttons pull low), 6 end switch level
+                // (the chip's SW input: closed = low).
+                let mut p = 0x01;
+                if self.running {
+                    p |= 0x02;
+                }
+                if !self.inputs.bin1 {
+                    p |= 0x10;
+                }
+                if !self.inputs.bin2 {
+                    p |= 0x20;
+                }
+                if !axis.status().switch_closed() {
+                    p |= 0x40;
+                }
+                Value::U8(p)
+            }
+            Query::DriverStatus => Value::U8(self.status() as u8),
+            Query::DriverMode => Value::U8(s.mode.code()),
+            Query::FullScaleCurrent => Value::Current(s.full_scale),
+            Query::IdleCurrent => Value::Current(s.idle),
+            Query::OverheatCurrent => Value::Current(s.overheat),
+            Query::StepMode => Value::U8(s.step_mode),
+            Query::TemperatureLimit => Value::U8(s.temperature_limit),
+            Query::Faults => Value::U8(self.faults),
+            Query::Position => Value::I32(
+                axis.actual_position()
+                    .clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32,
+            ),
+            Query::MaxSpeed => sat16(s.max_speed),
+            Query::Acceleration => sat16(s.acc),
+            Query::Deceleration => sat16(s.dec),
+            Query::CurrentSpeed => Value::I16(
+                axis.profile()
+                    .velocity()
+                    .clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16,
+            ),
+            Query::RequestedSpeed => Value::U16(s.requested_speed),
+            Query::Invert => Value::U8(u8::from(s.invert)),
+        }
+    }
+}

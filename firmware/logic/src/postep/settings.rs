@@ -1,0 +1,423 @@
+//! Settings of the PoStep60s (one per axis) and their persistence image.
+//!
+//! The image is what "Write settings to EEPROM" stores: a format byte, the
+//! bridge-wide settings, then one fixed-size record per axis, all
+//! little-endian. Decoding validates every field; an image with any field
+//! out of range is rejected as a whole (the store's CRC already rules out
+//! torn data, so an invalid field means a different firmware wrote it).
+
+use super::current::Current;
+use crate::powerstep::chain::MAX_DEVICES;
+
+/// PoStep60 driver modes (manual 8.3.11).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum DriverMode {
+    /// 1: external step/dir.
+    External = 1,
+    /// 2: step control (USB 0x90 speed).
+    StepControl = 2,
+    /// 3: DC motor (not possible on a powerSTEP01).
+    DcMotor = 3,
+    /// 4: position control (trajectory).
+    Position = 4,
+    /// 5: BINx buttons.
+    BinButtons = 5,
+    /// 6: auto run (speed mode).
+    AutoRun = 6,
+}
+
+impl DriverMode {
+    pub const fn from_code(code: u8) -> Option<DriverMode> {
+        match code {
+            1 => Some(DriverMode::External),
+            2 => Some(DriverMode::StepControl),
+            3 => Some(DriverMode::DcMotor),
+            4 => Some(DriverMode::Position),
+            5 => Some(DriverMode::BinButtons),
+            6 => Some(DriverMode::AutoRun),
+            _ => None,
+        }
+    }
+    pub const fn code(self) -> u8 {
+        self as u8
+    }
+}
+
+/// Modbus serial settings (USB 0x80 byte 44 codes 0..=5).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Parity {
+    Even,
+    Odd,
+    /// No parity, two stop bits.
+    None,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Serial {
+    pub baud: u32,
+    pub parity: Parity,
+}
+
+impl Serial {
+    pub const DEFAULT: Serial = Serial {
+        baud: 9600,
+        parity: Parity::Even,
+    };
+    /// Manual code: 0 9600E, 1 9600O, 2 9600N, 3 19200E, 4 19200O, 5 19200N.
+    pub const fn from_code(code: u8) -> Option<Serial> {
+        let baud = match code / 3 {
+            0 => 9600,
+            1 => 19200,
+            _ => return None,
+        };
+        let parity = match code % 3 {
+            0 => Parity::Even,
+            1 => Parity::Odd,
+            _ => Parity::None,
+        };
+        Some(Serial { baud, parity })
+    }
+    pub const fn code(self) -> u8 {
+        let b = if self.baud == 19200 { 3 } else { 0 };
+        b + match self.parity {
+            Parity::Even => 0,
+            Parity::Odd => 1,
+            Parity::None => 2,
+        }
+    }
+}
+
+/// Length of the custom name (USB 0xC0/0xC1).
+pub const NAME_LEN: usize = 32;
+
+/// Settings of one PoStep60 (one axis).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct AxisSettings {
+    pub full_scale: Current,
+    pub idle: Current,
+    pub overheat: Current,
+    /// PoStep60 step mode: 0 = full … 8 = 1/256.
+    pub step_mode: u8,
+    /// °C (0..=120).
+    pub temperature_limit: u8,
+    pub mode: DriverMode,
+    /// Motion profile, logical steps/s and steps/s².
+    pub max_speed: u32,
+    pub acc: u32,
+    pub dec: u32,
+    /// Auto run requested speed, steps/s.
+    pub requested_speed: u16,
+    pub invert: bool,
+    pub end_switch: bool,
+    /// End switch is normally closed (else normally open).
+    pub end_switch_nc: bool,
+    pub bin1_steps: i32,
+    pub bin2_steps: i32,
+    pub name: [u8; NAME_LEN],
+}
+
+/// Highest temperature limit (USB 0x80 byte 38: "max.: 120").
+pub const TEMPERATURE_LIMIT_MAX: u8 = 120;
+
+impl AxisSettings {
+    /// Factory settings (SPEC.md: mode 4, position control).
+    pub const FACTORY: AxisSettings = AxisSettings {
+        full_scale: Current::from_milliamps(1000),
+        idle: Current::from_milliamps(500),
+        overheat: Current::from_milliamps(500),
+        step_mode: 4,
+        temperature_limit: 80,
+        mode: DriverMode::Position,
+        max_speed: 1000,
+        acc: 1000,
+        dec: 1000,
+        requested_speed: 0,
+        invert: false,
+        end_switch: false,
+        end_switch_nc: false,
+        bin1_steps: 100,
+        bin2_steps: -100,
+        name: *b"stepbridge axis\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0",
+    };
+
+    const RECORD: usize = 2 * 3 + 1 + 1 + 1 + 4 * 3 + 2 + 1 + 4 * 2 + NAME_LEN;
+
+    fn encode(&self, out: &mut [u8]) {
+        let mut w = Writer { out, at: 0 };
+        for c in [self.full_scale, self.idle, self.overheat] {
+            w.bytes(&c.to_bytes());
+        }
+        w.bytes(&[self.step_mode, self.temperature_limit, self.mode.code()]);
+        for v in [self.max_speed, self.acc, self.dec] {
+            w.bytes(&v.to_le_bytes());
+        }
+        w.bytes(&self.requested_speed.to_le_bytes());
+        let flags = u8::from(self.invert)
+            | u8::from(self.end_switch) << 1
+            | u8::from(self.end_switch_nc) << 2;
+        w.bytes(&[flags]);
+        w.bytes(&self.bin1_steps.to_le_bytes());
+        w.bytes(&self.bin2_steps.to_le_bytes());
+        w.bytes(&self.name);
+    }
+
+    fn decode(input: &[u8]) -> Option<AxisSettings> {
+        let mut r = Reader { input, at: 0 };
+        let mut current = || -> Option<Current> {
+            let c = Current {
+                tq: r.u8()?,
+                ai: r.u8()?,
+            };
+            c.milliamps().map(|_| c)
+        };
+        let full_scale = current()?;
+        let idle = current()?;
+        let overheat = current()?;
+        let step_mode = r.u8().filter(|m| *m <= 8)?;
+        let temperature_limit = r.u8().filter(|t| *t <= TEMPERATURE_LIMIT_MAX)?;
+        let mode = DriverMode::from_code(r.u8()?)?;
+        let max_speed = r.u32()?;
+        let acc = r.u32()?;
+        let dec = r.u32()?;
+        let requested_speed = r.u16()?;
+        let flags = r.u8().filter(|f| *f < 8)?;
+        let bin1_steps = r.u32()? as i32;
+        let bin2_steps = r.u32()? as i32;
+        let mut name = [0u8; NAME_LEN];
+        name.copy_from_slice(r.take(NAME_LEN)?);
+        Some(AxisSettings {
+            full_scale,
+            idle,
+            overheat,
+            step_mode,
+            temperature_limit,
+            mode,
+            max_speed,
+            acc,
+            dec,
+            requested_speed,
+            invert: flags & 1 != 0,
+            end_switch: flags & 2 != 0,
+            end_switch_nc: flags & 4 != 0,
+            bin1_steps,
+            bin2_steps,
+            name,
+        })
+    }
+}
+
+/// Settings of the whole bridge.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Settings {
+    /// Address of axis 0 (I2C and Modbus); axis k answers `base + k`.
+    pub base_address: u8,
+    pub serial: Serial,
+    pub axes: [AxisSettings; MAX_DEVICES],
+}
+
+/// Image format written by this firmware.
+pub const IMAGE_FORMAT: u8 = 1;
+/// Bytes of a settings image.
+pub const IMAGE_LEN: usize = 3 + MAX_DEVICES * AxisSettings::RECORD;
+const _: () = assert!(IMAGE_LEN <= crate::persist::MAX_IMAGE, "image must fit the store");
+
+/// Why an image was not accepted.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ImageError {
+    /// Another image format (written by other firmware).
+    Format(u8),
+    /// Wrong length or a field out of range.
+    Invalid,
+}
+
+impl Settings {
+    pub const FACTORY: Settings = Settings {
+        base_address: 1,
+        serial: Serial::DEFAULT,
+        axes: [AxisSettings::FACTORY; MAX_DEVICES],
+    };
+
+    pub fn to_image(&self, out: &mut [u8; IMAGE_LEN]) {
+        out[0] = IMAGE_FORMAT;
+        out[1] = self.base_address;
+        out[2] = self.serial.code();
+        for (axis, chunk) in self
+            .axes
+            .iter()
+            .zip(out[3..].chunks_exact_mut(AxisSettings::RECORD))
+        {
+            axis.encode(chunk);
+        }
+    }
+
+    pub fn from_image(image: &[u8]) -> Result<Settings, ImageError> {
+        let (&format, rest) = image.split_first().ok_or(ImageError::Invalid)?;
+        if format != IMAGE_FORMAT {
+            return Err(ImageError::Format(format));
+        }
+        if image.len() != IMAGE_LEN {
+            return Err(ImageError::Invalid);
+        }
+        let (&base_address, rest) = rest.split_first().ok_or(ImageError::Invalid)?;
+        let (&serial, rest) = rest.split_first().ok_or(ImageError::Invalid)?;
+        if !(1..=247).contains(&base_address) {
+            return Err(ImageError::Invalid);
+        }
+        let serial = Serial::from_code(serial).ok_or(ImageError::Invalid)?;
+        let mut axes = [AxisSettings::FACTORY; MAX_DEVICES];
+        for (axis, chunk) in axes.iter_mut().zip(rest.chunks_exact(AxisSettings::RECORD)) {
+            *axis = AxisSettings::decode(chunk).ok_or(ImageError::Invalid)?;
+        }
+        Ok(Settings {
+            base_address,
+            serial,
+            axes,
+        })
+    }
+}
+
+struct Writer<'a> {
+    out: &'a mut [u8],
+    at: usize,
+}
+
+impl Writer<'_> {
+    fn bytes(&mut self, b: &[u8]) {
+        if let Some(dst) = self.out.get_mut(self.at..self.at + b.len()) {
+            dst.copy_from_slice(b);
+        }
+        self.at += b.len();
+    }
+}
+
+struct Reader<'a> {
+    input: &'a [u8],
+    at: usize,
+}
+
+impl<'a> Reader<'a> {
+    fn take(&mut self, n: usize) -> Option<&'a [u8]> {
+        let s = self.input.get(self.at..self.at.checked_add(n)?)?;
+        self.at += n;
+        Some(s)
+    }
+    fn u8(&mut self) -> Option<u8> {
+        self.take(1)?.first().copied()
+    }
+    fn u16(&mut self) -> Option<u16> {
+        let b = self.take(2)?;
+        Some(u16::from_le_bytes([*b.first()?, *b.get(1)?]))
+    }
+    fn u32(&mut self) -> Option<u32> {
+        let b = self.take(4)?;
+        let mut a = [0u8; 4];
+        a.copy_from_slice(b);
+        Some(u32::from_le_bytes(a))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn factory_image_round_trips() {
+        let mut img = [0u8; IMAGE_LEN];
+        Settings::FACTORY.to_image(&mut img);
+        assert_eq!(Settings::from_image(&img), Ok(Settings::FACTORY));
+    }
+
+    #[test]
+    fn every_field_survives_the_image() {
+        let mut s = Settings::FACTORY;
+        s.base_address = 200;
+        s.serial = Serial::from_code(5).unwrap();
+        s.axes[3] = AxisSettings {
+            full_scale: Current { tq: 184, ai: 1 },
+            idle: Current { tq: 10, ai: 3 },
+            overheat: Current { tq: 99, ai: 2 },
+            step_mode: 8,
+            temperature_limit: 120,
+            mode: DriverMode::AutoRun,
+            max_speed: 65_535,
+            acc: 1,
+            dec: 4_000_000,
+            requested_speed: 1234,
+            invert: true,
+            end_switch: true,
+            end_switch_nc: true,
+            bin1_steps: i32::MIN,
+            bin2_steps: i32::MAX,
+            name: [b'x'; NAME_LEN],
+        };
+        let mut img = [0u8; IMAGE_LEN];
+        s.to_image(&mut img);
+        assert_eq!(Settings::from_image(&img), Ok(s));
+    }
+
+    #[test]
+    fn other_formats_and_out_of_range_fields_are_rejected() {
+        let mut img = [0u8; IMAGE_LEN];
+        Settings::FACTORY.to_image(&mut img);
+        let mut other = img;
+        other[0] = 2;
+        assert_eq!(Settings::from_image(&other), Err(ImageError::Format(2)));
+        let mut bad_mode = img;
+        bad_mode[3 + 8] = 7; // mode of axis 0 (after 3 currents, step mode, limit)
+        assert_eq!(Settings::from_image(&bad_mode), Err(ImageError::Invalid));
+        assert_eq!(
+            Settings::from_image(&img[..IMAGE_LEN - 1]),
+            Err(ImageError::Invalid)
+        );
+        assert_eq!(Settings::from_image(&[]), Err(ImageError::Invalid));
+    }
+
+    #[test]
+    fn serial_codes_match_the_manual() {
+        assert_eq!(
+            Serial::from_code(0),
+            Some(Serial {
+                baud: 9600,
+                parity: Parity::Even
+            })
+        );
+        assert_eq!(
+            Serial::from_code(2),
+            Some(Serial {
+                baud: 9600,
+                parity: Parity::None
+            })
+        );
+        assert_eq!(
+            Serial::from_code(4),
+            Some(Serial {
+                baud: 19200,
+                parity: Parity::Odd
+            })
+        );
+        assert_eq!(Serial::from_code(6), None);
+        for c in 0..6 {
+            assert_eq!(Serial::from_code(c).unwrap().code(), c);
+        }
+    }
+
+    #[test]
+    fn random_images_never_panic() {
+        let mut x = 0x1234_5678_u32;
+        let mut img = [0u8; IMAGE_LEN];
+        for _ in 0..2000 {
+            for b in img.iter_mut() {
+                x ^= x << 13;
+                x ^= x >> 17;
+                x ^= x << 5;
+                *b = x as u8;
+            }
+            img[0] = IMAGE_FORMAT;
+            let _ = Settings::from_image(&img);
+        }
+    }
+}

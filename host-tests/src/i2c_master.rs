@@ -1,0 +1,135 @@
+//! A simulated I2C master talking to the bridge through the same
+//! `I2cSlave` state machine the firmware's interrupt handlers drive, plus a
+//! virtual clock that ticks the bridge and the simulated chips together.
+
+use bridge_logic::bridge::{Bridge, SettingsSource};
+use bridge_logic::postep::analog::AnalogSample;
+use bridge_logic::postep::{Board, Settings};
+use bridge_logic::sim::SimChain;
+use bridge_logic::transport::i2c::{I2cSlave, Which};
+
+pub const TICK_US: u32 = 1000;
+
+/// Bridge + simulated chain + I2C bus + virtual clock.
+pub struct Bench {
+    pub bridge: Bridge<SimChain>,
+    pub slave: I2cSlave,
+    pub now_ms: u64,
+}
+
+impl Bench {
+    /// A bridge on `n` simulated chips with `settings`, run until configured.
+    pub fn new(n: usize, settings: Settings) -> Bench {
+        Self::with_board(n, settings, Board::REFERENCE)
+    }
+
+    pub fn with_board(n: usize, settings: Settings, board: Board) -> Bench {
+        let bridge = Bridge::new(
+            SimChain::new(n),
+            board,
+            settings,
+            SettingsSource::Stored,
+            TICK_US,
+        );
+        let mut b = Bench {
+            bridge,
+            slave: I2cSlave::new(),
+            now_ms: 0,
+        };
+        // 24 V supply, 25 °C.
+        b.bridge.on_analog(AnalogSample {
+            supply: 1490,
+            temperature: 943,
+            vrefint: 1502,
+        });
+        b.run(20);
+        b
+    }
+
+    /// Which own address (if any) `addr` matches.
+    fn which(&self, addr: u8) -> Option<Which> {
+        let (a, b) = self.bridge.i2c_addresses();
+        if addr == a {
+            Some(Which::Primary)
+        } else if Some(addr) == b {
+            Some(Which::Secondary)
+        } else {
+            None
+        }
+    }
+
+    /// Master write `bytes` to `addr` (START, address+W, bytes, STOP).
+    /// Returns false if nobody acknowledged the address.
+    pub fn write(&mut self, addr: u8, bytes: &[u8]) -> bool {
+        let Some(which) = self.which(addr) else {
+            return false;
+        };
+        self.slave.on_address(which, false, &mut self.bridge);
+        for b in bytes {
+            self.slave.on_byte_received(*b);
+        }
+        self.slave.on_stop(&mut self.bridge);
+        true
+    }
+
+    /// Master read of `n` bytes from `addr`.
+    pub fn read(&mut self, addr: u8, n: usize) -> Option<Vec<u8>> {
+        let which = self.which(addr)?;
+        self.slave.on_address(which, true, &mut self.bridge);
+        let out = (0..n).map(|_| self.slave.on_byte_requested()).collect();
+        self.slave.on_stop(&mut self.bridge);
+        Some(out)
+    }
+
+    /// Write a command, then read `n` bytes of its response.
+    pub fn query(&mut self, addr: u8, cmd: u8, n: usize) -> Vec<u8> {
+        assert!(self.write(addr, &[cmd]), "address {addr} not acknowledged");
+        self.read(addr, n).expect("read")
+    }
+
+    /// Run the control loop for `ms` milliseconds of virtual time.
+    pub fn run(&mut self, ms: u64) {
+        for _ in 0..ms {
+            self.now_ms += 1;
+            self.bridge.tick(self.now_ms);
+            self.bridge
+                .chain_mut()
+                .bus_mut()
+                .advance(u64::from(TICK_US) * 1000);
+        }
+    }
+
+    /// Run until every axis is settled (panics after `cap` ms).
+    pub fn settle(&mut self, cap: u64) {
+        for _ in 0..cap {
+            if (0..self.bridge.axes()).all(|k| self.bridge.axis(k).is_some_and(|a| a.is_settled()))
+            {
+                return;
+            }
+            self.run(1);
+        }
+        panic!("not settled after {cap} ms");
+    }
+
+    pub fn chip(&self, k: usize) -> &bridge_logic::sim::Powerstep01 {
+        self.bridge.chain().bus().device(k).expect("chip")
+    }
+
+    pub fn chip_mut(&mut self, k: usize) -> &mut bridge_logic::sim::Powerstep01 {
+        self.bridge
+            .chain_mut()
+            .bus_mut()
+            .device_mut(k)
+            .expect("chip")
+    }
+}
+
+/// Little-endian i32 from the first four bytes.
+pub fn le_i32(b: &[u8]) -> i32 {
+    i32::from_le_bytes([b[0], b[1], b[2], b[3]])
+}
+
+/// Little-endian u16 from the first two bytes.
+pub fn le_u16(b: &[u8]) -> u16 {
+    u16::from_le_bytes([b[0], b[1]])
+}

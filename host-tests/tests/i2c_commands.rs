@@ -1,0 +1,733 @@
+//! Every PoStep60 I2C command of manual §8.3 against the bridge and the
+//! simulated chain: the bytes a master sends, the bytes it gets back, and
+//! what the motors do. Byte vectors follow the manual's formulas.
+
+use bridge_logic::motion::axis::logical_to_physical;
+use bridge_logic::postep::analog::AnalogSample;
+use bridge_logic::postep::settings::{DriverMode, IMAGE_LEN};
+use bridge_logic::postep::{Board, Inputs, Settings};
+use bridge_logic::powerstep::registers::Register;
+use bridge_logic::powerstep::StepSel;
+use bridge_logic::sim::Fault;
+use host_tests::i2c_master::{le_i32, le_u16, Bench};
+
+const A0: u8 = 1; // factory address of axis 0
+const A1: u8 = 2; // axis 1
+
+fn bench() -> Bench {
+    Bench::new(2, Settings::FACTORY)
+}
+
+/// Physical microsteps of a logical position in the factory step mode (1/16 on 1/128).
+fn phys(pos: i64) -> i32 {
+    logical_to_physical(pos, 4, StepSel::OneTwentyEighth) as i32
+}
+
+// ------------------------------------------------------------- protocol ----
+
+#[test]
+fn loopback_0x01_returns_the_four_bytes_written() {
+    let mut b = bench();
+    assert!(b.write(A0, &[0x01, 0xDE, 0xAD, 0xBE, 0xEF]));
+    assert_eq!(b.read(A0, 4).unwrap(), [0xDE, 0xAD, 0xBE, 0xEF]);
+}
+
+#[test]
+fn a_read_repeats_the_last_command() {
+    let mut b = bench();
+    b.write(A0, &[0x01, 1, 2, 3, 4]);
+    assert_eq!(b.read(A0, 4).unwrap(), [1, 2, 3, 4]);
+    assert_eq!(b.read(A0, 4).unwrap(), [1, 2, 3, 4]);
+}
+
+#[test]
+fn reads_past_the_response_return_zeros() {
+    let mut b = bench();
+    assert_eq!(b.query(A0, 0x14, 4), [4, 0, 0, 0]);
+}
+
+#[test]
+fn unknown_commands_are_ignored_counted_and_read_as_zeros() {
+    let mut b = bench();
+    assert!(b.write(A0, &[0x99, 1, 2]));
+    assert_eq!(b.read(A0, 3).unwrap(), [0, 0, 0]);
+    assert_eq!(b.bridge.diag.i2c_unknown, 1);
+}
+
+#[test]
+fn short_writes_are_ignored() {
+    let mut b = bench();
+    b.write(A0, &[0x50, 0x10, 0x27]); // Set position needs 4 bytes
+    b.run(50);
+    assert_eq!(b.bridge.diag.i2c_short, 1);
+    assert_eq!(b.chip(0).abs_pos(), 0);
+    assert_eq!(b.chip(0).speed_reg(), 0);
+}
+
+#[test]
+fn other_addresses_are_not_acknowledged() {
+    let mut b = bench();
+    assert!(!b.write(3, &[0x14]));
+    assert!(b.read(0x50, 1).is_none());
+}
+
+// ---------------------------------------------------------------- reads ----
+
+#[test]
+fn hw_fw_info_0x0a_is_driver_id_0x41_then_versions() {
+    let mut b = bench();
+    assert_eq!(b.query(A0, 0x0A, 5), [0x41, 1, 0, 0, 1]);
+}
+
+#[test]
+fn voltage_0x10_is_0_072_v_per_lsb_little_endian() {
+    let mut b = bench();
+    let v = b.query(A0, 0x10, 2);
+    // 24 V supply: (BYTE1·256 + BYTE0)·0.072 ≈ 24
+    let volts = f64::from(le_u16(&v)) * 0.072;
+    assert!((23.9..=24.1).contains(&volts), "{volts} V from {v:?}");
+    assert_eq!(v, [0x4D, 0x01]); // 333
+}
+
+#[test]
+fn temperature_0x11_is_0_125_c_per_lsb_little_endian() {
+    let mut b = bench();
+    let t = f64::from(le_u16(&b.query(A0, 0x11, 2))) * 0.125;
+    assert!((24.0..=26.0).contains(&t), "{t} °C");
+}
+
+#[test]
+fn pin_statuses_0x12_report_bootloader_enable_buttons_and_end_switch() {
+    let mut b = bench();
+    assert_eq!(b.query(A0, 0x12, 1), [0b0111_0011]);
+    b.chip_mut(0).set_switch(true); // closed pulls the input low
+    b.bridge.on_inputs(
+        0,
+        Inputs {
+            bin1: true,
+            bin2: false,
+        },
+    );
+    b.run(4);
+    assert_eq!(b.query(A0, 0x12, 1), [0b0010_0011]);
+}
+
+#[test]
+fn driver_status_0x13_is_active_after_boot() {
+    let mut b = bench();
+    assert_eq!(b.query(A0, 0x13, 1), [2]);
+}
+
+#[test]
+fn driver_mode_0x14_is_position_control_from_the_factory() {
+    let mut b = bench();
+    assert_eq!(b.query(A0, 0x14, 1), [4]);
+}
+
+#[test]
+fn currents_0x20_to_0x22_read_tq_then_ai() {
+    let mut b = bench();
+    // 1.0 A → Tq 123, Ai 3; 0.5 A → Tq 61, Ai 3 (manual's loop)
+    assert_eq!(b.query(A0, 0x20, 2), [123, 3]);
+    assert_eq!(b.query(A0, 0x21, 2), [61, 3]);
+    assert_eq!(b.query(A0, 0x22, 2), [61, 3]);
+}
+
+#[test]
+fn step_mode_0x23_reads_the_logical_step_mode() {
+    let mut b = bench();
+    assert_eq!(b.query(A0, 0x23, 1), [4]);
+}
+
+#[test]
+fn temperature_limit_0x24_reads_degrees() {
+    let mut b = bench();
+    assert_eq!(b.query(A0, 0x24, 1), [80]);
+}
+
+#[test]
+fn faults_0x25_are_zero_on_a_healthy_chip() {
+    let mut b = bench();
+    assert_eq!(b.query(A0, 0x25, 1), [0]);
+}
+
+#[test]
+fn position_0x40_is_four_bytes_lsb_first() {
+    let mut b = bench();
+    b.write(A0, &[0x50, 0x10, 0x27, 0x00, 0x00]); // 10 000
+    b.settle(30_000);
+    assert_eq!(b.query(A0, 0x40, 4), [0x10, 0x27, 0x00, 0x00]);
+    assert_eq!(b.chip(0).abs_pos(), phys(10_000));
+}
+
+#[test]
+fn negative_positions_are_twos_complement() {
+    let mut b = bench();
+    b.write(A0, &[0x50, 0x18, 0xFC, 0xFF, 0xFF]); // −1000
+    b.settle(30_000);
+    assert_eq!(le_i32(&b.query(A0, 0x40, 4)), -1000);
+    assert_eq!(b.chip(0).abs_pos(), phys(-1000));
+}
+
+#[test]
+fn profile_0x41_to_0x43_read_back_what_0x51_to_0x53_set() {
+    let mut b = bench();
+    b.write(A0, &[0x51, 0xD0, 0x07]); // 2000 steps/s
+    b.write(A0, &[0x52, 0x88, 0x13]); // 5000 steps/s²
+    b.write(A0, &[0x53, 0x10, 0x27]); // 10000 steps/s²
+    assert_eq!(b.query(A0, 0x41, 2), [0xD0, 0x07]);
+    assert_eq!(b.query(A0, 0x42, 2), [0x88, 0x13]);
+    assert_eq!(b.query(A0, 0x43, 2), [0x10, 0x27]);
+}
+
+#[test]
+fn current_speed_0x44_reads_the_profile_speed_while_moving() {
+    let mut b = bench();
+    b.write(A0, &[0x50, 0x40, 0x42, 0x0F, 0x00]); // 1 000 000
+    b.run(2000); // 1000 steps/s², max 1000 steps/s: at max speed after 1 s
+    assert_eq!(le_u16(&b.query(A0, 0x44, 2)), 1000);
+}
+
+#[test]
+fn requested_speed_0x45_and_invert_0x46_read_zero_from_the_factory() {
+    let mut b = bench();
+    assert_eq!(b.query(A0, 0x45, 2), [0, 0]);
+    assert_eq!(b.query(A0, 0x46, 1), [0]);
+}
+
+// --------------------------------------------------------------- writes ----
+
+#[test]
+fn run_sleep_0x03_0x0f_sleeps_and_0xda_runs_again() {
+    let mut b = bench();
+    b.write(A0, &[0x03, 0x0F]);
+    b.run(10);
+    assert_eq!(b.query(A0, 0x13, 1), [1]);
+    assert!(b.chip(0).is_hiz());
+    b.write(A0, &[0x50, 0xE8, 0x03, 0, 0]); // ignored while asleep
+    b.run(200);
+    assert_eq!(b.chip(0).abs_pos(), 0);
+    b.write(A0, &[0x03, 0xDA]);
+    b.run(10);
+    assert_eq!(b.query(A0, 0x13, 1), [2]);
+    assert!(!b.chip(0).is_hiz());
+}
+
+#[test]
+fn run_sleep_ignores_other_values() {
+    let mut b = bench();
+    b.write(A0, &[0x03, 0x55]);
+    b.run(10);
+    assert_eq!(b.query(A0, 0x13, 1), [2]);
+    assert_eq!(b.bridge.diag.refused, 1);
+}
+
+#[test]
+fn address_0x04_moves_axis_0_and_axis_1_follows() {
+    let mut b = bench();
+    assert!(b.write(A0, &[0x04, 1, 0x20]));
+    assert!(b.bridge.take_address_change());
+    assert_eq!(b.bridge.i2c_addresses(), (0x20, Some(0x21)));
+    assert_eq!(b.query(0x20, 0x14, 1), [4]);
+    assert!(!b.write(A0, &[0x14]));
+}
+
+#[test]
+fn address_0x04_sent_to_axis_1_gives_axis_1_the_new_address() {
+    let mut b = bench();
+    b.write(A1, &[0x04, 2, 0x30]);
+    assert_eq!(b.bridge.i2c_addresses(), (0x2F, Some(0x30)));
+}
+
+#[test]
+fn address_0x04_needs_byte0_equal_to_the_current_address() {
+    let mut b = bench();
+    b.write(A0, &[0x04, 7, 0x20]);
+    assert_eq!(b.bridge.i2c_addresses(), (1, Some(2)));
+    assert!(!b.bridge.take_address_change());
+}
+
+#[test]
+fn address_0x04_accepts_only_1_to_127() {
+    let mut b = bench();
+    b.write(A0, &[0x04, 1, 0]);
+    b.write(A0, &[0x04, 1, 128]);
+    assert_eq!(b.bridge.i2c_addresses(), (1, Some(2)));
+    // axis 1 cannot take address 1: axis 0 would need address 0
+    b.write(A1, &[0x04, 2, 1]);
+    assert_eq!(b.bridge.i2c_addresses(), (1, Some(2)));
+}
+
+#[test]
+fn driver_mode_0x05_accepts_auto_run() {
+    let mut b = bench();
+    b.write(A0, &[0x05, 6]);
+    assert_eq!(b.query(A0, 0x14, 1), [6]);
+}
+
+#[test]
+fn driver_mode_0x05_refuses_dc_motor_and_external_step_dir_on_this_board() {
+    let mut b = bench();
+    b.write(A0, &[0x05, 3]);
+    b.write(A0, &[0x05, 1]);
+    b.write(A0, &[0x05, 2]);
+    b.write(A0, &[0x05, 9]);
+    assert_eq!(b.query(A0, 0x14, 1), [4]);
+    assert_eq!(b.bridge.diag.refused, 4);
+}
+
+#[test]
+fn driver_mode_1_is_accepted_where_the_board_routes_step() {
+    let board = Board {
+        step_dir_routed: true,
+        ..Board::REFERENCE
+    };
+    let mut b = Bench::with_board(1, Settings::FACTORY, board);
+    b.write(A0, &[0x05, 1]);
+    assert_eq!(b.query(A0, 0x14, 1), [1]);
+}
+
+#[test]
+fn set_pwm_0x06_is_refused_and_moves_nothing() {
+    let mut b = bench();
+    b.write(A0, &[0x06, 1, 1, 0x64, 0, 0x64, 0]);
+    b.run(100);
+    assert_eq!(b.chip(0).abs_pos(), 0);
+    assert_eq!(b.bridge.diag.refused, 1);
+}
+
+#[test]
+fn full_scale_current_0x30_round_trips_and_reaches_kval() {
+    let mut b = bench();
+    // 2.5 A: Tq = 307 → 153, Ai 2
+    b.write(A0, &[0x30, 153, 2]);
+    assert_eq!(b.query(A0, 0x20, 2), [153, 2]);
+    b.run(10);
+    // 0.065·153/4 = 2.486 A · 1 Ω / 24 V · 256 = 26.5 → 27
+    assert_eq!(b.chip(0).register(Register::KvalRun), 27);
+    assert_eq!(b.chip(0).register(Register::KvalHold), 27);
+}
+
+#[test]
+fn currents_above_6_a_are_clamped_to_the_manual_encoding_of_6_a() {
+    let mut b = bench();
+    b.write(A0, &[0x30, 255, 1]); // 8.29 A
+    assert_eq!(b.query(A0, 0x20, 2), [184, 1]);
+    b.write(A0, &[0x31, 255, 0]); // 16.6 A
+    assert_eq!(b.query(A0, 0x21, 2), [184, 1]);
+    b.write(A0, &[0x32, 200, 1]); // 6.5 A
+    assert_eq!(b.query(A0, 0x22, 2), [184, 1]);
+}
+
+#[test]
+fn idle_and_overheat_currents_0x31_0x32_round_trip() {
+    let mut b = bench();
+    b.write(A0, &[0x31, 100, 3]);
+    b.write(A0, &[0x32, 200, 3]);
+    assert_eq!(b.query(A0, 0x21, 2), [100, 3]);
+    assert_eq!(b.query(A0, 0x22, 2), [200, 3]);
+}
+
+#[test]
+fn step_mode_0x33_sets_0_to_8_and_ignores_the_rest() {
+    let mut b = bench();
+    b.write(A0, &[0x33, 8]);
+    assert_eq!(b.query(A0, 0x23, 1), [8]);
+    b.write(A0, &[0x33, 9]);
+    assert_eq!(b.query(A0, 0x23, 1), [8]);
+}
+
+#[test]
+fn step_mode_change_keeps_the_physical_position() {
+    let mut b = bench();
+    b.write(A0, &[0x50, 0xE8, 0x03, 0, 0]); // 1000 sixteenth steps
+    b.settle(30_000);
+    b.write(A0, &[0x33, 2]); // quarter steps
+    b.settle(1000);
+    assert_eq!(le_i32(&b.query(A0, 0x40, 4)), 250);
+    assert_eq!(b.chip(0).abs_pos(), phys(1000));
+    b.write(A0, &[0x50, 0xF4, 0x01, 0, 0]); // 500 quarter steps
+    b.settle(30_000);
+    assert_eq!(b.chip(0).abs_pos(), 500 * 32);
+}
+
+#[test]
+fn temperature_limit_0x34_is_clamped_to_120() {
+    let mut b = bench();
+    b.write(A0, &[0x34, 100]);
+    assert_eq!(b.query(A0, 0x24, 1), [100]);
+    b.write(A0, &[0x34, 200]);
+    assert_eq!(b.query(A0, 0x24, 1), [120]);
+}
+
+#[test]
+fn overcurrent_sets_aocp_and_bocp_and_reset_faults_0x35_clears_them() {
+    let mut b = bench();
+    b.chip_mut(0).inject(Fault::Overcurrent);
+    b.run(4);
+    assert_eq!(b.query(A0, 0x25, 1), [0b0000_0110]);
+    b.write(A0, &[0x35]);
+    assert_eq!(b.query(A0, 0x25, 1), [0]);
+}
+
+#[test]
+fn a_latched_fault_refuses_set_position_until_reset() {
+    let mut b = bench();
+    b.chip_mut(0).inject(Fault::Overcurrent);
+    b.run(4);
+    b.write(A0, &[0x50, 0xE8, 0x03, 0, 0]);
+    b.run(300);
+    assert_eq!(b.chip(0).abs_pos(), 0);
+    b.write(A0, &[0x35]);
+    b.write(A0, &[0x50, 0xE8, 0x03, 0, 0]);
+    b.settle(30_000);
+    assert_eq!(b.chip(0).abs_pos(), phys(1000));
+}
+
+#[test]
+fn thermal_shutdown_sets_ots_until_the_chip_cools() {
+    let mut b = bench();
+    b.chip_mut(1).inject(Fault::ThermalShutdown);
+    b.run(4);
+    assert_eq!(b.query(A1, 0x25, 1)[0] & 1, 1);
+    b.write(A1, &[0x35]);
+    b.run(4);
+    assert_eq!(
+        b.query(A1, 0x25, 1)[0] & 1,
+        1,
+        "OTS cannot be cleared while hot"
+    );
+    b.chip_mut(1).inject(Fault::ThermalNormal);
+    b.run(4);
+    b.write(A1, &[0x35]);
+    b.run(4);
+    assert_eq!(b.query(A1, 0x25, 1), [0]);
+}
+
+#[test]
+fn stall_sets_std_and_stdlat_without_stopping() {
+    let mut b = bench();
+    b.chip_mut(0).inject(Fault::Stall);
+    let mut seen = 0;
+    for _ in 0..3 {
+        b.run(1);
+        seen |= b.query(A0, 0x25, 1)[0];
+        if seen & 0x40 != 0 {
+            break;
+        }
+    }
+    assert_eq!(seen & 0xC0, 0xC0);
+    b.run(4);
+    assert_eq!(
+        b.query(A0, 0x25, 1)[0] & 0xC0,
+        0x80,
+        "STD follows, STDLAT stays"
+    );
+}
+
+#[test]
+fn undervoltage_sets_the_uvlo_fault() {
+    let mut b = bench();
+    b.chip_mut(0).inject(Fault::Uvlo);
+    b.run(10);
+    assert_eq!(b.query(A0, 0x25, 1)[0] & 0x20, 0x20);
+}
+
+#[test]
+fn write_settings_0x3f_hands_out_an_image_once_all_axes_rest() {
+    let mut b = bench();
+    let mut img = [0u8; IMAGE_LEN];
+    b.write(A0, &[0x50, 0x10, 0x27, 0, 0]);
+    b.run(5);
+    b.write(A0, &[0x3F]);
+    assert!(!b.bridge.take_save(&mut img), "not while moving");
+    b.settle(30_000);
+    assert!(b.bridge.take_save(&mut img));
+    assert!(!b.bridge.take_save(&mut img), "once");
+    let s = Settings::from_image(&img).unwrap();
+    assert_eq!(s, b.bridge.settings());
+}
+
+#[test]
+fn set_position_0x50_moves_to_the_target_exactly() {
+    let mut b = bench();
+    b.write(A1, &[0x50, 0x39, 0x30, 0, 0]); // 12345
+    b.settle(60_000);
+    assert_eq!(b.chip(1).abs_pos(), phys(12345));
+    assert_eq!(b.chip(0).abs_pos(), 0);
+}
+
+#[test]
+fn set_position_0x50_is_refused_outside_position_and_binx_modes() {
+    let mut b = bench();
+    b.write(A0, &[0x05, 6]); // auto run at requested speed 0
+    b.write(A0, &[0x50, 0xE8, 0x03, 0, 0]);
+    b.run(500);
+    assert_eq!(b.chip(0).abs_pos(), 0);
+}
+
+#[test]
+fn requested_speed_0x54_and_invert_0x55_work_only_in_auto_run() {
+    let mut b = bench();
+    b.write(A0, &[0x54, 0xC8, 0x00]); // 200 steps/s, position mode: ignored
+    assert_eq!(b.query(A0, 0x45, 2), [0, 0]);
+    b.write(A0, &[0x05, 6]);
+    b.write(A0, &[0x54, 0xC8, 0x00]);
+    b.run(1000);
+    assert_eq!(b.query(A0, 0x45, 2), [0xC8, 0x00]);
+    assert_eq!(le_u16(&b.query(A0, 0x44, 2)), 200);
+    b.write(A0, &[0x55, 0x01]);
+    b.run(1000);
+    assert_eq!(b.query(A0, 0x46, 1), [1]);
+    assert_eq!(le_u16(&b.query(A0, 0x44, 2)) as i16, -200);
+}
+
+#[test]
+fn set_zero_0x5e_makes_required_and_actual_position_zero() {
+    let mut b = bench();
+    b.write(A0, &[0x50, 0xE8, 0x03, 0, 0]);
+    b.settle(30_000);
+    b.write(A0, &[0x5E]);
+    b.settle(1000);
+    assert_eq!(b.query(A0, 0x40, 4), [0, 0, 0, 0]);
+    assert_eq!(b.chip(0).abs_pos(), 0);
+    b.write(A0, &[0x50, 0x64, 0, 0, 0]);
+    b.settle(30_000);
+    assert_eq!(b.chip(0).abs_pos(), phys(100));
+}
+
+#[test]
+fn stop_0x5f_stops_at_once_without_a_ramp() {
+    let mut b = bench();
+    b.write(A0, &[0x50, 0x40, 0x42, 0x0F, 0x00]);
+    b.run(1500);
+    b.write(A0, &[0x5F]);
+    b.run(3);
+    let stopped = b.chip(0).abs_pos();
+    b.settle(1000);
+    let held = b.chip(0).abs_pos();
+    // Stopped within the next ticks (1000 steps/s · 3 ms = 3 steps = 24 µsteps)
+    // and landed on the logical step at or below.
+    assert!((held - stopped).abs() <= 8, "{stopped} → {held}");
+    assert_eq!(held % 8, 0);
+    assert_eq!(b.chip(0).speed_reg(), 0);
+}
+
+#[test]
+fn system_reset_0x60_is_requested_after_the_write() {
+    let mut b = bench();
+    assert!(!b.bridge.take_reset());
+    b.write(A0, &[0x60]);
+    assert!(b.bridge.take_reset());
+}
+
+#[test]
+fn soft_stop_extension_0x71_decelerates_with_dec() {
+    let mut b = bench();
+    b.write(A0, &[0x50, 0x40, 0x42, 0x0F, 0x00]);
+    b.run(1500);
+    b.write(A0, &[0x71]);
+    b.settle(5000);
+    let pos = le_i32(&b.query(A0, 0x40, 4));
+    // From 1000 steps/s at 1000 steps/s²: ~500 steps of braking after 1000 steps.
+    assert!((1400..=1600).contains(&pos), "{pos}");
+}
+
+#[test]
+fn select_axis_extension_0x70_reaches_every_axis_from_one_address() {
+    let mut b = Bench::new(4, Settings::FACTORY);
+    b.write(A0, &[0x70, 3]);
+    assert_eq!(b.read(A0, 2).unwrap(), [3, 4]);
+    b.write(A0, &[0x50, 0x64, 0, 0, 0]);
+    b.settle(30_000);
+    assert_eq!(b.chip(3).abs_pos(), phys(100));
+    assert_eq!(b.chip(0).abs_pos(), 0);
+    b.write(A0, &[0x70, 9]); // no such axis: ignored
+    assert_eq!(b.read(A0, 2).unwrap(), [3, 4]);
+}
+
+// ------------------------------------------------- behaviour over time ----
+
+#[test]
+fn hold_current_drops_to_idle_current_10_s_after_motion() {
+    let mut b = bench();
+    b.write(A0, &[0x50, 0x64, 0, 0, 0]);
+    b.settle(30_000);
+    let full = b.chip(0).register(Register::KvalHold);
+    b.run(9_000);
+    assert_eq!(b.query(A0, 0x13, 1), [2]);
+    assert_eq!(b.chip(0).register(Register::KvalHold), full);
+    b.run(1_100);
+    assert_eq!(b.query(A0, 0x13, 1), [3]);
+    // 0.5 A · 1 Ω / 24 V · 256 = 5.3 → 5 (idle); run current unchanged
+    assert_eq!(b.chip(0).register(Register::KvalHold), 5);
+    assert_eq!(b.chip(0).register(Register::KvalRun), full);
+}
+
+#[test]
+fn motion_ends_idle_and_restores_the_full_hold_current() {
+    let mut b = bench();
+    b.run(10_100);
+    assert_eq!(b.query(A0, 0x13, 1), [3]);
+    b.write(A0, &[0x50, 0x64, 0, 0, 0]);
+    b.run(5);
+    assert_eq!(b.query(A0, 0x13, 1), [2]);
+    assert_eq!(b.chip(0).register(Register::KvalHold), 11);
+}
+
+#[test]
+fn above_the_temperature_limit_currents_drop_to_the_overheat_current() {
+    let mut b = bench();
+    // 90 °C: 0.76 V + 65·2.5 mV = 0.9225 V = 1145 counts at VDDA 3.2988 V
+    b.bridge.on_analog(AnalogSample {
+        supply: 1490,
+        temperature: 1145,
+        vrefint: 1502,
+    });
+    b.run(4);
+    assert_eq!(b.query(A0, 0x13, 1), [4]);
+    assert_eq!(b.chip(0).register(Register::KvalRun), 5);
+    assert_eq!(b.chip(0).register(Register::KvalHold), 5);
+    // Back below limit − 2 °C: full current again.
+    b.bridge.on_analog(AnalogSample {
+        supply: 1490,
+        temperature: 943,
+        vrefint: 1502,
+    });
+    b.run(4);
+    assert_eq!(b.query(A0, 0x13, 1), [2]);
+    assert_eq!(b.chip(0).register(Register::KvalRun), 11);
+}
+
+fn settings_with(f: impl Fn(&mut bridge_logic::postep::AxisSettings)) -> Settings {
+    let mut s = Settings::FACTORY;
+    for a in s.axes.iter_mut() {
+        f(a);
+    }
+    s
+}
+
+#[test]
+fn an_end_switch_edge_stops_the_axis_and_a_new_target_either_way_is_accepted() {
+    let mut b = Bench::new(
+        1,
+        settings_with(|a| {
+            a.end_switch = true;
+            a.max_speed = 2000;
+        }),
+    );
+    b.write(A0, &[0x50, 0x40, 0x42, 0x0F, 0x00]);
+    b.run(800);
+    b.chip_mut(0).set_switch(true);
+    b.run(4);
+    let at_switch = b.chip(0).abs_pos();
+    b.settle(2000);
+    assert!((b.chip(0).abs_pos() - at_switch).abs() <= 16);
+    // Either direction works afterwards, the switch still closed.
+    b.write(A0, &[0x50, 0x00, 0x00, 0x00, 0x00]);
+    b.settle(30_000);
+    assert_eq!(b.chip(0).abs_pos(), 0);
+    b.write(A0, &[0x50, 0x10, 0x27, 0x00, 0x00]);
+    b.settle(30_000);
+    assert_eq!(b.chip(0).abs_pos(), phys(10_000));
+}
+
+#[test]
+fn a_disabled_end_switch_does_not_stop_the_axis() {
+    let mut b = Bench::new(1, Settings::FACTORY);
+    b.write(A0, &[0x50, 0x10, 0x27, 0x00, 0x00]);
+    b.run(300);
+    b.chip_mut(0).set_switch(true);
+    b.settle(30_000);
+    assert_eq!(b.chip(0).abs_pos(), phys(10_000));
+}
+
+#[test]
+fn binx_buttons_move_by_bin1_and_bin2_steps() {
+    let mut b = Bench::new(
+        1,
+        settings_with(|a| {
+            a.mode = DriverMode::BinButtons;
+            a.bin1_steps = 300;
+            a.bin2_steps = -120;
+        }),
+    );
+    b.bridge.on_inputs(
+        0,
+        Inputs {
+            bin1: true,
+            bin2: false,
+        },
+    );
+    b.settle(30_000);
+    assert_eq!(b.chip(0).abs_pos(), phys(300));
+    b.bridge.on_inputs(
+        0,
+        Inputs {
+            bin1: false,
+            bin2: false,
+        },
+    );
+    b.bridge.on_inputs(
+        0,
+        Inputs {
+            bin1: false,
+            bin2: true,
+        },
+    );
+    b.settle(30_000);
+    assert_eq!(b.chip(0).abs_pos(), phys(180));
+    // Holding a button does not repeat.
+    b.bridge.on_inputs(
+        0,
+        Inputs {
+            bin1: false,
+            bin2: true,
+        },
+    );
+    b.run(500);
+    assert_eq!(b.chip(0).abs_pos(), phys(180));
+}
+
+#[test]
+fn binx_buttons_do_nothing_in_position_mode() {
+    let mut b = bench();
+    b.bridge.on_inputs(
+        0,
+        Inputs {
+            bin1: true,
+            bin2: false,
+        },
+    );
+    b.run(500);
+    assert_eq!(b.chip(0).abs_pos(), 0);
+}
+
+#[test]
+fn auto_run_starts_at_power_up_with_max_speed() {
+    let mut b = Bench::new(
+        1,
+        settings_with(|a| {
+            a.mode = DriverMode::AutoRun;
+            a.max_speed = 500;
+            a.requested_speed = 100;
+        }),
+    );
+    b.run(2000);
+    assert_eq!(le_u16(&b.query(A0, 0x44, 2)), 500);
+    assert!(b.chip(0).abs_pos() > 0);
+}
+
+#[test]
+fn auto_run_with_invert_runs_backwards() {
+    let mut b = Bench::new(
+        1,
+        settings_with(|a| {
+            a.mode = DriverMode::AutoRun;
+            a.max_speed = 500;
+            a.invert = true;
+        }),
+    );
+    b.run(2000);
+    assert!(b.chip(0).abs_pos() < 0);
+}
