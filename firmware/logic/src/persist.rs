@@ -30,8 +30,8 @@
 //!    read from flash is checked (the module denies unchecked indexing and
 //!    overflowing arithmetic). No allocation, `no_std`.
 //! 6. **Writes only when asked.** `new` and `load` never program or erase;
-//!    only `save` does, and an erase stalls an STM32F4 for 1–2 s, so the
-//!    caller saves only on the explicit command.
+//!    only `save` does, and an erase stalls an STM32F405 for 2 s typical,
+//!    4 s worst case, so the caller saves only on the explicit command.
 //!
 //! # Assumptions
 //!
@@ -116,7 +116,7 @@
 //! |--------------------------------|------------------------------------------|-------------|
 //! | E (erase other sector)         | other sector: any mix of old records, `0xFF` and noise; active sector untouched | old |
 //! | after E, before (1)            | other sector erased                      | old |
-//! | (1) header                     | partial header: garbage, sector closed; or whole header: record stepped over | old |
+//! | (1) header                     | no bit cleared: still erased, the next record goes there; part of it: garbage, sector closed; all of it: framed record, stepped over | old |
 //! | (2), (3) payload, CRC          | framed record, CRC or commit missing     | old |
 //! | (4) commit word                | commit incomplete → not intact; complete → intact | old or new |
 //! | after (4)                      | record intact (even if `save` reported the cut) | new |
