@@ -40,6 +40,10 @@ pub type HostI2c = pac::I2C1;
 /// ADC for the motor supply, the internal temperature sensor and VREFINT
 /// (only ADC1 reaches the internal channels 16 and 17).
 pub type SenseAdc = pac::ADC1;
+/// Modbus RTU on RS-485 (on APB1). Its interrupt is `USART2` (the `binds =`
+/// of the Modbus task in `main.rs` must follow this alias). Under QEMU's
+/// `netduinoplus2` it is the second `-serial` backend.
+pub type ModbusUsart = pac::USART2;
 
 // ---------------------------------------------------------------------------
 // Pins in use (configured by [`configure`])
@@ -67,6 +71,17 @@ pub type HostI2cScl = gpio::PB6<Alternate<4, OpenDrain>>;
 pub type HostI2cSda = gpio::PB7<Alternate<4, OpenDrain>>;
 /// ADC1_IN0, analog: the motor supply through the board divider (÷20).
 pub type SupplySense = gpio::PA0<Analog>;
+/// USART2 TX (AF7) → DI of the RS-485 transceiver.
+pub type ModbusTx = gpio::PA2<Alternate<7>>;
+/// USART2 RX (AF7), internal pull-up ← RO of the RS-485 transceiver (RO is
+/// high-Z while the driver is enabled when RE̅ is tied to DE: the pull-up
+/// keeps the line idle-high then).
+pub type ModbusRx = gpio::PA3<Alternate<7>>;
+/// RS-485 driver enable (DE, and RE̅ tied to it), push-pull: low = receive,
+/// high = transmit. Driven low from `configure` on; until then (reset, boot)
+/// the pin floats, so the board needs a pull-down on DE to keep the
+/// transceiver off the bus.
+pub type ModbusDe = gpio::PA1<Output<PushPull>>;
 
 // ---------------------------------------------------------------------------
 // Pins reserved for later issues: declared, not configured
@@ -78,12 +93,6 @@ pub type SupplySense = gpio::PA0<Analog>;
 pub mod reserved {
     use stm32f4xx_hal::gpio;
 
-    /// USART2 TX (AF7): Modbus RTU on RS-485.
-    pub type ModbusTx = gpio::PA2;
-    /// USART2 RX (AF7): Modbus RTU on RS-485.
-    pub type ModbusRx = gpio::PA3;
-    /// RS-485 transceiver driver enable (GPIO, high = transmit).
-    pub type ModbusDe = gpio::PA1;
     /// USB OTG FS D− (AF10): USB HID.
     pub type UsbDm = gpio::PA11;
     /// USB OTG FS D+ (AF10): USB HID.
@@ -108,9 +117,9 @@ pub const PIN_TABLE: &[(&str, &str, &str)] = &[
     ("HOST_I2C_SCL", "PB6",  "I2C1 SCL (AF4), open drain, PoStep60 I2C slave"),
     ("HOST_I2C_SDA", "PB7",  "I2C1 SDA (AF4), open drain, PoStep60 I2C slave"),
     ("SUPPLY_SENSE", "PA0",  "analog, motor supply through the board divider (÷20)"),
-    ("MODBUS_TX",    "PA2",  "reserved: USART2 TX (AF7), Modbus RTU on RS-485"),
-    ("MODBUS_RX",    "PA3",  "reserved: USART2 RX (AF7), Modbus RTU on RS-485"),
-    ("MODBUS_DE",    "PA1",  "reserved: GPIO, RS-485 driver enable"),
+    ("MODBUS_TX",    "PA2",  "USART2 TX (AF7), Modbus RTU, to DI of the RS-485 transceiver"),
+    ("MODBUS_RX",    "PA3",  "USART2 RX (AF7), pull-up, from RO of the RS-485 transceiver"),
+    ("MODBUS_DE",    "PA1",  "GPIO push-pull, RS-485 DE (and RE-), high = transmit"),
     ("USB_DM",       "PA11", "reserved: USB OTG FS D- (AF10), USB HID"),
     ("USB_DP",       "PA12", "reserved: USB OTG FS D+ (AF10), USB HID"),
     ("CHAIN_STCK",   "PB1",  "reserved: GPIO, STEP pass-through to the chips' STCK"),
@@ -133,13 +142,16 @@ pub struct Pins {
     pub host_i2c_scl: HostI2cScl,
     pub host_i2c_sda: HostI2cSda,
     pub supply_sense: SupplySense,
+    pub modbus_tx: ModbusTx,
+    pub modbus_rx: ModbusRx,
+    pub modbus_de: ModbusDe,
 }
 
 /// Configure every pin in use from the split GPIO ports. Safe states first:
 /// CS high (deselected), STBY low (chips held in reset until the caller
-/// releases them), LED off; the I2C pins are released (open drain, and the
-/// I2C peripheral stays off until its driver starts it). Reserved pins stay
-/// in their reset mode.
+/// releases them), LED off, RS-485 DE low (receive); the I2C pins are
+/// released (open drain, and the I2C peripheral stays off until its driver
+/// starts it). Reserved pins stay in their reset mode.
 pub fn configure(
     gpioa: gpio::gpioa::Parts,
     gpiob: gpio::gpiob::Parts,
@@ -161,6 +173,13 @@ pub fn configure(
         host_i2c_scl,
         host_i2c_sda,
         supply_sense: gpioa.pa0.into_analog(),
+        // ≤ 19200 baud: low slew is ample and keeps the cable quiet.
+        modbus_tx: gpioa.pa2.into_alternate().speed(Speed::Low),
+        modbus_rx: gpioa.pa3.into_alternate().internal_pull_up(true),
+        modbus_de: gpioa
+            .pa1
+            .into_push_pull_output_in_state(PinState::Low)
+            .speed(Speed::Low),
     }
 }
 

@@ -30,7 +30,6 @@
 //!   controller), the store's read-back check turns a save into
 //!   `StoreError::Flash`.
 
-
 use bridge_logic::persist::Store;
 use embedded_storage::nor_flash::{
     ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,

@@ -1,70 +1,119 @@
 //! stepbridge firmware: the RTIC 2 application for the STM32F405.
 //!
 //! Thin glue only. Pins and peripherals come from [`board`], the chain SPI
-//! from [`chain_spi`]; every decision about what goes on the chain belongs to
-//! the logic crate (`bridge_logic`). This file wires them to interrupts:
+//! from [`chain_spi`], the Modbus line from [`rs485`], time from [`clock`];
+//! every decision about what goes on a bus belongs to the logic crate
+//! (`bridge_logic`). This file wires them to interrupts:
 //!
-//! * `init`: clocks, pins, chain reset pulse, settings from the flash store,
-//!   the bridge (chain detection and axis setup), I2C slave, ADC, timer.
+//! * `init`: clocks, SysTick monotonic, pins, chain reset pulse, settings
+//!   from the flash store, the bridge (chain detection and axis setup), I2C
+//!   slave, Modbus line, ADC, timer.
 //! * `control_tick` (TIM2 update, 1 kHz, priority 3): `bridge.tick(now)`: one
 //!   chain batch for every axis; LED; spawns the slow jobs.
+//! * `modbus_uart` (USART2, priority 4): every received byte is stamped with
+//!   the monotonic's µs and handed to the Modbus RTU server; the response
+//!   goes out by TXE/TC interrupts with DE high (see `rs485`). Highest
+//!   priority, so stamps are accurate and a response never stalls between
+//!   characters (a pause > t1.5 would break the frame).
+//! * `modbus_server` (async, priority 2): sleeps until the server's t3.5
+//!   deadline, then locks the bridge only for `poll` (which executes the
+//!   request) and starts the response at once.
 //! * `i2c_event` / `i2c_error` (I2C1, priority 2): bytes in and out of the
 //!   PoStep60 I2C protocol; the bridge is locked only to execute a write or
 //!   prepare a read.
 //! * `housekeeping` (priority 1): ADC samples, pending settings save (flash),
-//!   system reset.
+//!   system reset — the last two only while no Modbus response is going out.
 //! * `idle`: spins (no `wfi`, which stops the debug clock on some probes and
 //!   gains nothing while a 1 kHz tick keeps waking the core).
 //!
-//! The firmware is built only for `thumbv7em-none-eabihf` (`cargo fw`). On
-//! any other target this file compiles to an empty `main`, so a host-side
-//! `cargo check --workspace` still works.
+//! With the `qemu` feature the same app runs on QEMU's `netduinoplus2`;
+//! [`qemu`] lists what is replaced (clocks, chain, ADC, flash, I2C, log
+//! transport) and the control tick comes from the monotonic
+//! (`control_loop`) because QEMU's TIM2 is unusable.
+//!
+//! The firmware is built only for `thumbv7em-none-eabihf` (`cargo fw`,
+//! `cargo qemu`). On any other target this file compiles to an empty `main`,
+//! so a host-side `cargo check --workspace` still works.
 #![cfg_attr(target_os = "none", no_std)]
 #![cfg_attr(target_os = "none", no_main)]
 #![deny(unsafe_code)]
 
-#[cfg(target_os = "none")]
+#[cfg(all(target_os = "none", not(feature = "qemu")))]
 mod analog;
+// Under QEMU the chain SPI, HSE and I2C assignments go unused (the board
+// build checks them).
 #[cfg(target_os = "none")]
+#[cfg_attr(feature = "qemu", allow(dead_code))]
 mod board;
-#[cfg(target_os = "none")]
+#[cfg(all(target_os = "none", not(feature = "qemu")))]
 mod chain_spi;
 #[cfg(target_os = "none")]
+mod clock;
+#[cfg(all(target_os = "none", not(feature = "qemu")))]
 mod flash_store;
+// Under QEMU never started, but compiled: RTIC's Send assertions name the
+// types of every resource, cfg'd out or not.
 #[cfg(target_os = "none")]
+#[cfg_attr(feature = "qemu", allow(dead_code))]
 mod i2c_slave;
-
+#[cfg(all(target_os = "none", feature = "qemu"))]
+mod qemu;
 #[cfg(target_os = "none")]
+mod rs485;
+
+#[cfg(all(target_os = "none", not(feature = "qemu")))]
 use defmt_rtt as _;
+#[cfg(all(target_os = "none", feature = "qemu"))]
+use defmt_semihosting as _;
 #[cfg(target_os = "none")]
 use panic_probe as _;
 
 #[cfg(not(target_os = "none"))]
 fn main() {
-    eprintln!("stepbridge is firmware: build it with `cargo fw`");
+    eprintln!("stepbridge is firmware: build it with `cargo fw` (board) or `cargo qemu`");
 }
 
-// Dispatchers: two unused interrupts for the software tasks.
+// Dispatchers: unused interrupts for the software tasks (one per priority).
 #[cfg(target_os = "none")]
-#[rtic::app(device = stm32f4xx_hal::pac, dispatchers = [UART4, UART5])]
+#[rtic::app(device = stm32f4xx_hal::pac, dispatchers = [UART4, UART5, USART6])]
 mod app {
     use bridge_logic::bridge::{boot_settings, Bridge};
     use bridge_logic::persist::{StoreError, MAX_IMAGE};
     use bridge_logic::postep::settings::IMAGE_LEN;
     use bridge_logic::postep::Board;
-    use bridge_logic::transport::i2c::I2cSlave;
-    use defmt::{error, info, warn};
+    use bridge_logic::transport::modbus::{RtuServer, Timing};
+    use defmt::{debug, error, info, warn};
+    use rtic::Mutex;
+    use rtic_monotonics::Timebase;
+    use rtic_sync::signal::{SignalReader, SignalWriter};
     use stm32f4xx_hal::gpio::GpioExt;
     use stm32f4xx_hal::rcc::{Config, RccExt};
-    use stm32f4xx_hal::time::Hertz;
-    use stm32f4xx_hal::timer::{CounterHz, Event, Flag, TimerExt};
-    use stm32f4xx_hal::{ClearFlags, Listen};
 
-    use crate::analog::Analog;
     use crate::board;
-    use crate::chain_spi::ChainSpiBus;
+    use crate::clock::{self, Mono};
+    use crate::rs485::Rs485;
+
+    // The board's peripherals, or their QEMU stand-ins (crate::qemu).
+    #[cfg(not(feature = "qemu"))]
+    use crate::analog::Analog;
+    #[cfg(not(feature = "qemu"))]
+    use crate::chain_spi::ChainSpiBus as ChainBus;
+    #[cfg(not(feature = "qemu"))]
     use crate::flash_store::{SettingsStore, StoreFlash};
-    use crate::i2c_slave::{I2cSlaveDriver, LockedTarget};
+    #[cfg(feature = "qemu")]
+    use crate::qemu::{FixedAnalog as Analog, RamFlash, SettingsStore, SimChain as ChainBus};
+    // (The resource types are named in both builds, see `mod i2c_slave`.)
+    use crate::i2c_slave::I2cSlaveDriver;
+    #[cfg(not(feature = "qemu"))]
+    use crate::i2c_slave::LockedTarget;
+    use bridge_logic::transport::i2c::I2cSlave;
+    use stm32f4xx_hal::timer::CounterHz;
+    #[cfg(not(feature = "qemu"))]
+    use stm32f4xx_hal::{
+        time::Hertz,
+        timer::{Event, Flag, TimerExt},
+        ClearFlags, Listen,
+    };
 
     /// Control-loop rate.
     const TICK_HZ: u32 = 1_000;
@@ -79,11 +128,17 @@ mod app {
     #[shared]
     struct Shared {
         /// The bridge: chain, axes, PoStep60 models; bus tasks hand it bytes.
-        bridge: Bridge<ChainSpiBus>,
+        bridge: Bridge<ChainBus>,
+        /// USART2 + DE: the RS-485 line (Modbus UART task and server task).
+        rs485: Rs485,
+        /// Modbus RTU framing and function codes (same two tasks).
+        modbus: RtuServer,
         /// I2C1 as the PoStep60 I2C slave (both I2C tasks, one priority).
+        #[cfg(not(feature = "qemu"))]
         #[lock_free]
         i2c: I2cSlaveDriver,
         /// PoStep60 I2C transaction framing (both I2C tasks, one priority).
+        #[cfg(not(feature = "qemu"))]
         #[lock_free]
         i2c_proto: I2cSlave,
     }
@@ -91,37 +146,59 @@ mod app {
     #[local]
     struct Local {
         /// TIM2 as the 1 kHz control-loop timer (update interrupt).
+        #[cfg(not(feature = "qemu"))]
         tick_timer: CounterHz<board::ControlTimer>,
         /// Milliseconds since boot (the bridge's clock).
+        #[cfg(not(feature = "qemu"))]
         now_ms: u64,
-        /// Status LED (pattern decided by the bridge).
+        /// Status LED (pattern decided by the bridge). Under QEMU it goes to
+        /// `control_loop` as its spawn argument instead.
+        #[cfg(not(feature = "qemu"))]
         led: board::StatusLed,
         /// ADC1: motor supply, die temperature, VREFINT.
         analog: Analog,
-        /// Settings store in flash sectors 10 and 11.
+        /// Settings store: flash sectors 10 and 11 (RAM under QEMU).
         store: SettingsStore,
+        /// Wakes the Modbus server task when bytes arrive (UART task's end).
+        bytes_in: SignalWriter<'static, ()>,
+        /// The Modbus server task's end of that signal.
+        bytes_seen: SignalReader<'static, ()>,
     }
 
     #[init]
     fn init(cx: init::Context) -> (Shared, Local) {
         let dp = cx.device;
-        let mut rcc = dp.RCC.freeze(
+        #[cfg(not(feature = "qemu"))]
+        let (clocks, systick_hz) = (
             Config::hse(Hertz::from_raw(board::HSE_HZ)).sysclk(Hertz::from_raw(board::SYSCLK_HZ)),
+            None,
         );
+        // QEMU models no PLL (its ready bits read 0): HSI only; its SysTick
+        // counts at 168 MHz anyway.
+        #[cfg(feature = "qemu")]
+        let (clocks, systick_hz) = (Config::hsi(), Some(crate::qemu::SYSTICK_HZ));
+        let mut rcc = dp.RCC.freeze(clocks);
         let sysclk = rcc.clocks.sysclk().raw();
         info!("stepbridge: SYSCLK {=u32} Hz", sysclk);
+        // `start` asserts a whole number of cycles per tick: 168 MHz is.
+        let systick_hz = systick_hz.unwrap_or(sysclk);
+        Mono::start(cx.core.SYST, systick_hz - systick_hz % clock::TICK_HZ);
 
         let pins = board::configure(
             dp.GPIOA.split(&mut rcc),
             dp.GPIOB.split(&mut rcc),
             dp.GPIOC.split(&mut rcc),
         );
-        let bus = ChainSpiBus::new(
+        #[cfg(not(feature = "qemu"))]
+        let bus = ChainBus::new(
             dp.SPI1,
             (pins.chain_sck, pins.chain_miso, pins.chain_mosi),
             pins.chain_cs,
             &mut rcc,
         );
+        // The simulated chain instead of SPI1; its pins stay configured.
+        #[cfg(feature = "qemu")]
+        let bus = crate::qemu::chain();
 
         // Reset pulse: STBY/RESET is already low (board::configure).
         let mut stby = pins.chain_stby;
@@ -129,7 +206,11 @@ mod app {
         stby.set_high();
         delay_ms(WAKE_UP_MS, sysclk);
 
-        let mut store = SettingsStore::new(StoreFlash::new(dp.FLASH));
+        #[cfg(not(feature = "qemu"))]
+        let flash = StoreFlash::new(dp.FLASH);
+        #[cfg(feature = "qemu")]
+        let flash = RamFlash::new();
+        let mut store = SettingsStore::new(flash);
         let mut image = [0u8; MAX_IMAGE];
         let loaded = store
             .load(&mut image)
@@ -137,40 +218,89 @@ mod app {
         let (settings, source) = boot_settings(loaded, |e| *e == StoreError::Empty);
         info!("settings: {}", source);
 
-        let bridge = Bridge::new(bus, Board::REFERENCE, settings, source, TICK_US);
+        let mut bridge = Bridge::new(bus, Board::REFERENCE, settings, source, TICK_US);
         match bridge.chain_error() {
             None => info!("chain: {=usize} powerSTEP01", bridge.axes()),
             Some(e) => error!("chain: detection failed ({}), running with 0 axes", e),
         }
 
-        let (primary, secondary) = bridge.i2c_addresses();
-        let i2c = I2cSlaveDriver::new(
-            dp.I2C1,
-            (pins.host_i2c_scl, pins.host_i2c_sda),
-            primary,
-            secondary,
+        #[cfg(not(feature = "qemu"))]
+        let i2c = {
+            let (primary, secondary) = bridge.i2c_addresses();
+            I2cSlaveDriver::new(
+                dp.I2C1,
+                (pins.host_i2c_scl, pins.host_i2c_sda),
+                primary,
+                secondary,
+                &mut rcc,
+            )
+        };
+
+        let serial = bridge.serial();
+        let timing = Timing::for_serial(serial);
+        let rs485 = Rs485::new(
+            dp.USART2,
+            (pins.modbus_tx, pins.modbus_rx),
+            pins.modbus_de,
+            serial,
             &mut rcc,
         );
-        let analog = Analog::new(dp.ADC1, pins.supply_sense, &mut rcc);
-
-        let mut tick_timer = dp.TIM2.counter_hz(&mut rcc);
-        match tick_timer.start(Hertz::from_raw(TICK_HZ)) {
-            Ok(()) => tick_timer.listen(Event::Update),
-            Err(e) => error!("control timer: start failed ({}), no control loop", e),
+        if rs485.is_configured() {
+            info!(
+                "modbus: RTU on USART2, {=u32} baud, parity {}, t1.5 {=u32} us, t3.5 {=u32} us, server ids from {=u8}, {=usize} axes",
+                serial.baud,
+                serial.parity,
+                timing.t15_us,
+                timing.t35_us,
+                bridge.base_address(),
+                bridge.axes()
+            );
+        } else {
+            error!("modbus: USART2 configuration refused, no Modbus");
         }
 
+        let mut analog = Analog::new(dp.ADC1, pins.supply_sense, &mut rcc);
+        bridge.on_analog(analog.sample());
+
+        #[cfg(not(feature = "qemu"))]
+        let tick_timer = {
+            let mut timer = dp.TIM2.counter_hz(&mut rcc);
+            match timer.start(Hertz::from_raw(TICK_HZ)) {
+                Ok(()) => timer.listen(Event::Update),
+                Err(e) => error!("control timer: start failed ({}), no control loop", e),
+            }
+            timer
+        };
+        #[cfg(feature = "qemu")]
+        if control_loop::spawn(pins.led).is_err() {
+            error!("control loop: spawn failed");
+        }
+        if modbus_server::spawn().is_err() {
+            error!("modbus: server task spawn failed");
+        }
+
+        let (bytes_in, bytes_seen) = rtic_sync::make_signal!(());
         (
             Shared {
                 bridge,
+                rs485,
+                modbus: RtuServer::new(timing),
+                #[cfg(not(feature = "qemu"))]
                 i2c,
+                #[cfg(not(feature = "qemu"))]
                 i2c_proto: I2cSlave::new(),
             },
             Local {
+                #[cfg(not(feature = "qemu"))]
                 tick_timer,
+                #[cfg(not(feature = "qemu"))]
                 now_ms: 0,
+                #[cfg(not(feature = "qemu"))]
                 led: pins.led,
                 analog,
                 store,
+                bytes_in,
+                bytes_seen,
             },
         )
     }
@@ -183,24 +313,100 @@ mod app {
     }
 
     /// The control loop: one bridge tick (one chain batch for every axis).
+    #[cfg(not(feature = "qemu"))]
     #[task(binds = TIM2, priority = 3, shared = [bridge], local = [tick_timer, now_ms, led])]
     fn control_tick(mut cx: control_tick::Context) {
-        let l = cx.local;
-        l.tick_timer.clear_flags(Flag::Update);
-        *l.now_ms += 1;
-        let now = *l.now_ms;
-        let led = cx.shared.bridge.lock(|b| {
+        cx.local.tick_timer.clear_flags(Flag::Update);
+        *cx.local.now_ms += 1;
+        control_step(&mut cx.shared.bridge, *cx.local.now_ms, cx.local.led);
+    }
+
+    /// The control loop under QEMU, whose TIM2 is unusable: the same step
+    /// every 1 ms of the monotonic (late ticks catch up, so the bridge's
+    /// clock keeps pace with real time).
+    #[cfg(feature = "qemu")]
+    #[task(priority = 3, shared = [bridge])]
+    async fn control_loop(mut cx: control_loop::Context, mut led: board::StatusLed) {
+        let period = <Mono as Timebase>::Duration::from_ticks(u64::from(clock::TICK_HZ / TICK_HZ));
+        let mut next = Mono::now();
+        let mut now_ms = 0;
+        loop {
+            next += period;
+            Mono::delay_until(next).await;
+            now_ms += 1;
+            control_step(&mut cx.shared.bridge, now_ms, &mut led);
+        }
+    }
+
+    /// One control tick at `now` ms: bridge tick, LED, slow jobs at 10 Hz.
+    fn control_step(
+        bridge: &mut impl Mutex<T = Bridge<ChainBus>>,
+        now: u64,
+        led: &mut board::StatusLed,
+    ) {
+        let on = bridge.lock(|b| {
             b.tick(now);
+            // The simulated chips live through exactly one tick period.
+            #[cfg(feature = "qemu")]
+            b.chain_mut().bus_mut().advance(u64::from(TICK_US) * 1_000);
             b.led_on(now)
         });
-        l.led.set_state(led.into());
+        led.set_state(on.into());
         if now % HOUSEKEEPING_TICKS == 0 {
             // Still busy with the previous round: skip this one.
             let _ = housekeeping::spawn();
         }
     }
 
+    /// USART2: received bytes, stamped, into the Modbus server; the
+    /// response's bytes out and DE released after the last stop bit.
+    #[task(binds = USART2, priority = 4, shared = [rs485, modbus], local = [bytes_in])]
+    fn modbus_uart(cx: modbus_uart::Context) {
+        let mut received = false;
+        (cx.shared.rs485, cx.shared.modbus).lock(|rs485, server| {
+            rs485.on_interrupt(|byte| {
+                server.on_byte(byte, clock::now_us());
+                received = true;
+            });
+        });
+        if received {
+            cx.local.bytes_in.write(());
+        }
+    }
+
+    /// Modbus frame ends: wait for the server's deadline (t3.5 after the
+    /// last byte), execute the request with the bridge locked, start the
+    /// response at once.
+    #[task(priority = 2, shared = [bridge, rs485, modbus], local = [bytes_seen, errors_seen: u32 = 0])]
+    async fn modbus_server(mut cx: modbus_server::Context) {
+        loop {
+            let Some(deadline) = cx.shared.modbus.lock(|s| s.deadline()) else {
+                cx.local.bytes_seen.wait().await;
+                continue;
+            };
+            Mono::delay_until(clock::instant_at_us(deadline)).await;
+            let now = clock::now_us();
+            let bridge = &mut cx.shared.bridge;
+            let errors = (&mut cx.shared.modbus, &mut cx.shared.rs485).lock(|server, rs485| {
+                if let Some(adu) = bridge.lock(|b| server.poll(now, b)) {
+                    rs485.send(adu);
+                    debug!(
+                        "modbus: response {=[u8]:02x}, started {=u64} us after t3.5",
+                        adu,
+                        now.saturating_sub(deadline)
+                    );
+                }
+                rs485.errors()
+            });
+            if errors.total() != *cx.local.errors_seen {
+                *cx.local.errors_seen = errors.total();
+                warn!("modbus: line errors {}", errors);
+            }
+        }
+    }
+
     /// I2C1 events: address match, data bytes, STOP (see `i2c_slave`).
+    #[cfg(not(feature = "qemu"))]
     #[task(binds = I2C1_EV, priority = 2, shared = [bridge, i2c, i2c_proto])]
     fn i2c_event(mut cx: i2c_event::Context) {
         let i2c = cx.shared.i2c;
@@ -218,6 +424,7 @@ mod app {
     }
 
     /// I2C1 errors: the master's NACK ending a read, bus errors.
+    #[cfg(not(feature = "qemu"))]
     #[task(binds = I2C1_ER, priority = 2, shared = [bridge, i2c, i2c_proto])]
     fn i2c_error(mut cx: i2c_error::Context) {
         cx.shared.i2c.on_error(
@@ -229,14 +436,20 @@ mod app {
     /// Slow jobs at the lowest priority: ADC samples (~71 µs of blocking
     /// conversions), a pending settings save (flash programming stalls the
     /// CPU; the bridge hands out the image only when every axis is at rest),
-    /// and a requested system reset.
-    #[task(priority = 1, shared = [bridge], local = [analog, store, image: [u8; IMAGE_LEN] = [0; IMAGE_LEN]])]
+    /// and a requested system reset. Save and reset wait until no Modbus
+    /// response is going out (both would cut it short); the check and the
+    /// take are one lock, so a response started in between cannot slip by.
+    #[task(priority = 1, shared = [bridge, rs485], local = [analog, store, image: [u8; IMAGE_LEN] = [0; IMAGE_LEN]])]
     async fn housekeeping(mut cx: housekeeping::Context) {
         let sample = cx.local.analog.sample();
         let image = cx.local.image;
-        let (save, reset) = cx.shared.bridge.lock(|b| {
+        let (save, reset) = (&mut cx.shared.bridge, &mut cx.shared.rs485).lock(|b, line| {
             b.on_analog(sample);
-            (b.take_save(image), b.take_reset())
+            if line.is_sending() {
+                (false, false)
+            } else {
+                (b.take_save(image), b.take_reset())
+            }
         });
         if save {
             let ok = cx.local.store.save(image).is_ok();

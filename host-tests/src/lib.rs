@@ -2,5 +2,6 @@
 //! the scenario tests in `tests/`, the plot and the benchmark binaries.
 
 pub mod i2c_master;
+pub mod modbus_master;
 pub mod rig;
 pub mod svg;

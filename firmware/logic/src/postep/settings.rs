@@ -222,7 +222,10 @@ pub struct Settings {
 pub const IMAGE_FORMAT: u8 = 1;
 /// Bytes of a settings image.
 pub const IMAGE_LEN: usize = 3 + MAX_DEVICES * AxisSettings::RECORD;
-const _: () = assert!(IMAGE_LEN <= crate::persist::MAX_IMAGE, "image must fit the store");
+const _: () = assert!(
+    IMAGE_LEN <= crate::persist::MAX_IMAGE,
+    "image must fit the store"
+);
 
 /// Why an image was not accepted.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

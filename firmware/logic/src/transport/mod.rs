@@ -2,3 +2,4 @@
 //! hardware registers.
 
 pub mod i2c;
+pub mod modbus;

@@ -1,0 +1,600 @@
+//! Modbus RTU server (PoStep60 manual §9, SPEC.md): serial-line framing,
+//! server ids, and the PoStep60 register map of [`map`].
+//!
+//! # Assumptions
+//!
+//! * The firmware calls [`RtuServer::on_byte`] from the RX interrupt with the
+//!   time the byte's stop bit ended (µs of a monotonic clock), and
+//!   [`RtuServer::poll`] once [`RtuServer::deadline`] has passed — again
+//!   while the deadline stays ≤ now. It transmits the ADU `poll` returns.
+//! * The receiver does not hear our own transmission (RS-485 with RE tied
+//!   to DE). An echoed FC 0x06 response is byte-identical to its request.
+//! * Characters are 11 bits: start, 8 data, parity (even/odd) or a second
+//!   stop bit (no parity), stop. [`Timing::for_serial`] derives t1.5/t3.5
+//!   from the settings' [`Serial`]; above 19200 baud the Modbus serial-line
+//!   spec's fixed 750 µs / 1750 µs apply.
+//!
+//! # Framing (Modbus over serial line V1.02, §2.5.1.1)
+//!
+//! * A frame ends when t3.5 has passed since the end of its last byte. A
+//!   byte ending at or after that instant starts a new frame, whether or not
+//!   `poll` ran in between (so the outcome never depends on poll latency).
+//! * Silence of more than t1.5 between two bytes of a frame (a byte ending
+//!   more than one character time + t1.5 after the previous one; the
+//!   character time is taken as ⅔·t1.5) marks the frame bad. The bytes after
+//!   the gap still belong to it until t3.5 of silence, then the whole frame
+//!   is dropped: an interrupted request is never half-executed and its tail
+//!   is never taken for a request.
+//! * Dropped silently, never answered, nothing executed: frames with a gap
+//!   (counted in [`Stats::gaps`]), frames longer than [`ADU_MAX`]
+//!   ([`Stats::overruns`]), frames shorter than 4 bytes or with a bad
+//!   CRC-16/MODBUS ([`Stats::crc_errors`]).
+//! * At most one ended frame waits for `poll`; if another one ends before
+//!   `poll` ran, the older one is dropped ([`Stats::overruns`]): a reply
+//!   that late would collide with the traffic that followed it.
+//!
+//! **Resynchronisation on a multidrop bus.** Frame boundaries come only from
+//! silence: every t3.5 of silence starts a fresh frame, so after noise, a
+//! partial frame or a power-up in the middle of traffic the server is back
+//! in sync at the next properly delimited frame. It never searches inside a
+//! frame for something that looks like a request: bytes glued to a frame
+//! without t3.5 of silence (leading or trailing garbage, two frames with no
+//! gap) make one frame whose CRC fails, and it is dropped — the master
+//! retries. Other servers' requests and responses are frames with another
+//! server id; only their CRC is checked and they are ignored
+//! ([`Stats::other_ids`]), whatever their function or length, so a
+//! response that happens to look like a request is never executed.
+//!
+//! # What is answered
+//!
+//! * Server ids: axis k answers `base + k` ([`ModbusTarget::axis_for_id`]).
+//!   Ids 248..=255, and ids of no axis, are never answered.
+//! * Broadcast (id 0): a well-formed write (FC 0x06 / 0x10 to a writable
+//!   command) is executed on every axis — 0x04 Set address only on the axis
+//!   that answers BYTE0 now — and nothing is ever sent back, not even an
+//!   exception. Broadcast reads and malformed broadcasts do nothing.
+//! * Exceptions, checked in the Modbus spec's order (response function code
+//!   = function | 0x80, SPEC.md): 01 the function is not 0x03/0x06/0x10;
+//!   03 quantity outside 1..=125 (0x03) / 1..=123 (0x10), byte count ≠
+//!   2 × quantity, or a PDU length that does not fit the function; 02 no
+//!   such command (including the extension space, high address byte ≠ 0,
+//!   and I2C-only 0x01), reading a write-only or writing a read-only
+//!   command, or a quantity other than the command's register count; 04 the
+//!   axis refused (asleep, faulted, wrong mode, DC motor/PWM, bad address
+//!   change).
+//! * Values the manual says are ignored (e.g. step mode > 8, Run/Sleep other
+//!   than 0xDA/0x0F) get the normal response, as on a PoStep60, and are
+//!   counted in [`Stats::ignored_values`].
+//! * 0x04 Set address: the response always carries the id the request was
+//!   sent to (the old one), then [`ModbusTarget::after_reply`] runs.
+//!   0x60 System reset and 0x3F Write settings: the target defers them
+//!   (the bridge's `take_reset` / `take_save`), so the reply goes out first.
+//! * Never panics, whatever the bytes and timestamps: every index is checked
+//!   and all time arithmetic saturates.
+
+pub mod map;
+mod target;
+
+pub use map::Exception;
+
+use crc::{Crc, CRC_16_MODBUS};
+use heapless::Vec;
+
+use crate::postep::settings::{Parity, Serial};
+use crate::postep::{CommandError, Effect, Query, Request, Value};
+
+/// Largest RTU ADU (server id + PDU + CRC).
+pub const ADU_MAX: usize = 256;
+/// Highest unicast server id.
+pub const ID_MAX: u8 = 247;
+/// Bits per character: start, 8 data, parity or second stop, stop.
+pub const CHARACTER_BITS: u32 = 11;
+/// Highest quantity of FC 0x03 (Modbus application protocol).
+pub const READ_QUANTITY_MAX: u16 = 125;
+/// Highest quantity of FC 0x10.
+pub const WRITE_QUANTITY_MAX: u16 = 123;
+
+const READ_HOLDING_REGISTERS: u8 = 0x03;
+const WRITE_SINGLE_REGISTER: u8 = 0x06;
+const WRITE_MULTIPLE_REGISTERS: u8 = 0x10;
+
+static CRC16: Crc<u16> = Crc::<u16>::new(&CRC_16_MODBUS);
+
+/// Inter-character (t1.5) and inter-frame (t3.5) silences, µs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Timing {
+    pub t15_us: u32,
+    pub t35_us: u32,
+}
+
+impl Timing {
+    /// t1.5 and t3.5 for 11-bit characters at `s.baud`, rounded up
+    /// (9600: 1719 / 4011 µs; 19200: 860 / 2006 µs); above 19200 baud the
+    /// fixed 750 / 1750 µs. A baud rate of 0 is taken as the default 9600.
+    pub const fn for_serial(s: Serial) -> Timing {
+        let baud = if s.baud == 0 {
+            Serial::DEFAULT.baud as u64
+        } else {
+            s.baud as u64
+        };
+        if baud > 19_200 {
+            return Timing {
+                t15_us: 750,
+                t35_us: 1750,
+            };
+        }
+        let bits = CHARACTER_BITS as u64;
+        // half-characters × bits × 1e6 / baud, rounded up; ≤ 38.5 s fits u32.
+        let t15 = (3 * bits * 1_000_000).div_ceil(2 * baud);
+        let t35 = (7 * bits * 1_000_000).div_ceil(2 * baud);
+        Timing {
+            t15_us: t15 as u32,
+            t35_us: t35 as u32,
+        }
+    }
+
+    /// One character time, taken as ⅔·t1.5 (exact up to 19200 baud).
+    pub const fn character_us(self) -> u32 {
+        ((self.t15_us as u64 * 2).div_ceil(3)) as u32
+    }
+}
+
+/// Stop bits of the UART character format: 2 without parity, else 1.
+pub const fn stop_bits(s: Serial) -> u8 {
+    match s.parity {
+        Parity::None => 2,
+        Parity::Even | Parity::Odd => 1,
+    }
+}
+
+/// Counters of what the server saw (all saturate).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Stats {
+    /// Frames with a valid CRC (any server id).
+    pub frames_ok: u32,
+    /// Frames shorter than 4 bytes or with a bad CRC (dropped).
+    pub crc_errors: u32,
+    /// Frames with silence > t1.5 inside (dropped).
+    pub gaps: u32,
+    /// Frames longer than [`ADU_MAX`], or ended frames replaced before
+    /// `poll` ran (dropped).
+    pub overruns: u32,
+    /// Valid frames for another server id (other servers' traffic; ignored).
+    pub other_ids: u32,
+    /// Exception responses built.
+    pub exceptions: u32,
+    /// Valid broadcast frames (id 0).
+    pub broadcasts: u32,
+    /// Requests answered normally although the axis ignored the value.
+    pub ignored_values: u32,
+    /// Normal (non-exception) responses built.
+    pub responses: u32,
+}
+
+impl Stats {
+    const ZERO: Stats = Stats {
+        frames_ok: 0,
+        crc_errors: 0,
+        gaps: 0,
+        overruns: 0,
+        other_ids: 0,
+        exceptions: 0,
+        broadcasts: 0,
+        ignored_values: 0,
+        responses: 0,
+    };
+}
+
+fn bump(counter: &mut u32) {
+    *counter = counter.saturating_add(1);
+}
+
+/// What the server executes requests on (the bridge).
+pub trait ModbusTarget {
+    /// Axis answering server id `id` (1..=247), if any.
+    fn axis_for_id(&self, id: u8) -> Option<usize>;
+    fn axes(&self) -> usize;
+    fn request(&mut self, axis: usize, req: Request) -> Result<Effect, CommandError>;
+    fn query(&self, axis: usize, q: Query) -> Option<Value>;
+    /// Called once the response has been produced (or for broadcasts, after
+    /// executing): apply deferred effects (address change). Called once for
+    /// every intact frame addressed to us (unicast or broadcast), whatever
+    /// the outcome.
+    fn after_reply(&mut self);
+}
+
+/// Why a frame in progress will be dropped.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Fault {
+    /// Silence > t1.5 inside the frame.
+    Gap,
+    /// More than [`ADU_MAX`] bytes.
+    Overlong,
+}
+
+#[derive(Clone)]
+struct Frame {
+    buf: [u8; ADU_MAX],
+    len: usize,
+    fault: Option<Fault>,
+    /// End of the last byte, µs.
+    last_us: u64,
+}
+
+impl Frame {
+    const EMPTY: Frame = Frame {
+        buf: [0; ADU_MAX],
+        len: 0,
+        fault: None,
+        last_us: 0,
+    };
+
+    fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    fn clear(&mut self) {
+        self.len = 0;
+        self.fault = None;
+    }
+
+    fn push(&mut self, byte: u8) {
+        match self.buf.get_mut(self.len) {
+            Some(slot) => {
+                *slot = byte;
+                self.len += 1;
+            }
+            None => self.fault = Some(Fault::Overlong),
+        }
+    }
+
+    fn bytes(&self) -> &[u8] {
+        self.buf.get(..self.len).unwrap_or(&[])
+    }
+}
+
+/// The Modbus RTU server of the bridge: one per serial line.
+pub struct RtuServer {
+    timing: Timing,
+    /// Frame in progress.
+    rx: Frame,
+    /// An ended frame waiting for `poll`.
+    ready: Frame,
+    /// Response ADU of the last `poll`.
+    tx: Vec<u8, ADU_MAX>,
+    stats: Stats,
+}
+
+impl core::fmt::Debug for RtuServer {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_struct("RtuServer")
+            .field("timing", &self.timing)
+            .field("rx_len", &self.rx.len)
+            .field("ready_len", &self.ready.len)
+            .field("stats", &self.stats)
+            .finish_non_exhaustive()
+    }
+}
+
+impl RtuServer {
+    pub const fn new(timing: Timing) -> RtuServer {
+        RtuServer {
+            timing,
+            rx: Frame::EMPTY,
+            ready: Frame::EMPTY,
+            tx: Vec::new(),
+            stats: Stats::ZERO,
+        }
+    }
+
+    pub fn timing(&self) -> Timing {
+        self.timing
+    }
+
+    pub fn stats(&self) -> Stats {
+        self.stats
+    }
+
+    fn frame_end(&self, frame: &Frame) -> u64 {
+        frame.last_us.saturating_add(u64::from(self.timing.t35_us))
+    }
+
+    /// RX interrupt: one byte received (its stop bit ended) at `now_us`.
+    pub fn on_byte(&mut self, byte: u8, now_us: u64) {
+        if !self.rx.is_empty() {
+            if now_us >= self.frame_end(&self.rx) {
+                // The frame in progress ended before this byte: it waits
+                // for `poll`; this byte starts a new one.
+                if !self.ready.is_empty() {
+                    bump(&mut self.stats.overruns);
+                }
+                core::mem::swap(&mut self.rx, &mut self.ready);
+                self.rx.clear();
+            } else {
+                let allowed = u64::from(self.timing.character_us())
+                    .saturating_add(u64::from(self.timing.t15_us));
+                if now_us.saturating_sub(self.rx.last_us) > allowed && self.rx.fault.is_none() {
+                    self.rx.fault = Some(Fault::Gap);
+                }
+            }
+        }
+        self.rx.push(byte);
+        self.rx.last_us = now_us;
+    }
+
+    /// When `poll` should run next: t3.5 after the last byte of a frame in
+    /// progress (already passed if an ended frame is waiting).
+    pub fn deadline(&self) -> Option<u64> {
+        if !self.ready.is_empty() {
+            Some(self.frame_end(&self.ready))
+        } else if !self.rx.is_empty() {
+            Some(self.frame_end(&self.rx))
+        } else {
+            None
+        }
+    }
+
+    /// If the frame in progress has ended (now ≥ deadline), process it;
+    /// returns the response ADU to transmit (None: nothing to send).
+    pub fn poll(&mut self, now_us: u64, target: &mut impl ModbusTarget) -> Option<&[u8]> {
+        self.tx.clear();
+        let rx_ended = !self.rx.is_empty() && now_us >= self.frame_end(&self.rx);
+        if rx_ended {
+            if !self.ready.is_empty() {
+                // Two ended frames: the older one is stale.
+                bump(&mut self.stats.overruns);
+                self.ready.clear();
+            }
+            process(&self.rx, &mut self.tx, &mut self.stats, target);
+            self.rx.clear();
+        } else if !self.ready.is_empty() {
+            process(&self.ready, &mut self.tx, &mut self.stats, target);
+            self.ready.clear();
+        }
+        if self.tx.is_empty() {
+            None
+        } else {
+            Some(self.tx.as_slice())
+        }
+    }
+}
+
+/// CRC-16/MODBUS of `bytes` (transmitted low byte first).
+pub fn crc16(bytes: &[u8]) -> u16 {
+    CRC16.checksum(bytes)
+}
+
+/// Handle one ended frame; the response (if any) is left in `tx`.
+fn process(
+    frame: &Frame,
+    tx: &mut Vec<u8, ADU_MAX>,
+    stats: &mut Stats,
+    target: &mut impl ModbusTarget,
+) {
+    match frame.fault {
+        Some(Fault::Gap) => return bump(&mut stats.gaps),
+        Some(Fault::Overlong) => return bump(&mut stats.overruns),
+        None => {}
+    }
+    let bytes = frame.bytes();
+    let Some(body_len) = bytes.len().checked_sub(2).filter(|n| *n >= 2) else {
+        return bump(&mut stats.crc_errors);
+    };
+    let (body, crc) = bytes.split_at(body_len);
+    if crc16(body).to_le_bytes() != *crc {
+        return bump(&mut stats.crc_errors);
+    }
+    bump(&mut stats.frames_ok);
+    let Some((&id, pdu)) = body.split_first() else {
+        return;
+    };
+    match id {
+        0 => {
+            bump(&mut stats.broadcasts);
+            broadcast(pdu, stats, target);
+            target.after_reply();
+        }
+        1..=ID_MAX => match target.axis_for_id(id) {
+            Some(axis) => {
+                respond(id, axis, pdu, tx, stats, target);
+                target.after_reply();
+            }
+            None => bump(&mut stats.other_ids),
+        },
+        _ => bump(&mut stats.other_ids),
+    }
+}
+
+/// A structurally valid request PDU.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Pdu<'a> {
+    Read {
+        address: u16,
+        quantity: u16,
+    },
+    WriteSingle {
+        address: u16,
+        data: &'a [u8],
+    },
+    WriteMultiple {
+        address: u16,
+        quantity: u16,
+        data: &'a [u8],
+    },
+}
+
+fn be16(b: &[u8], at: usize) -> u16 {
+    u16::from_be_bytes([
+        b.get(at).copied().unwrap_or(0),
+        b.get(at + 1).copied().unwrap_or(0),
+    ])
+}
+
+/// Check function code (01), then quantity, byte count and length (03).
+fn parse(pdu: &[u8]) -> Result<Pdu<'_>, Exception> {
+    let Some((&function, rest)) = pdu.split_first() else {
+        return Err(Exception::IllegalFunction);
+    };
+    match function {
+        READ_HOLDING_REGISTERS => {
+            let quantity = be16(rest, 2);
+            if rest.len() != 4 || !(1..=READ_QUANTITY_MAX).contains(&quantity) {
+                return Err(Exception::IllegalDataValue);
+            }
+            Ok(Pdu::Read {
+                address: be16(rest, 0),
+                quantity,
+            })
+        }
+        WRITE_SINGLE_REGISTER => match rest {
+            [a, b, data @ ..] if data.len() == 2 => Ok(Pdu::WriteSingle {
+                address: u16::from_be_bytes([*a, *b]),
+                data,
+            }),
+            _ => Err(Exception::IllegalDataValue),
+        },
+        WRITE_MULTIPLE_REGISTERS => match rest {
+            [a, b, q0, q1, count, data @ ..] => {
+                let quantity = u16::from_be_bytes([*q0, *q1]);
+                let expected = usize::from(quantity) * 2;
+                if !(1..=WRITE_QUANTITY_MAX).contains(&quantity)
+                    || usize::from(*count) != expected
+                    || data.len() != expected
+                {
+                    return Err(Exception::IllegalDataValue);
+                }
+                Ok(Pdu::WriteMultiple {
+                    address: u16::from_be_bytes([*a, *b]),
+                    quantity,
+                    data,
+                })
+            }
+            _ => Err(Exception::IllegalDataValue),
+        },
+        _ => Err(Exception::IllegalFunction),
+    }
+}
+
+/// Execute a request on `axis`; `Ignored` counts and answers normally.
+fn execute(
+    axis: usize,
+    req: Request,
+    stats: &mut Stats,
+    target: &mut impl ModbusTarget,
+) -> Result<(), Exception> {
+    match target.request(axis, req) {
+        Ok(_) => Ok(()),
+        Err(e) => match Exception::for_error(e) {
+            None => {
+                bump(&mut stats.ignored_values);
+                Ok(())
+            }
+            Some(x) => Err(x),
+        },
+    }
+}
+
+/// The response PDU (without the server id) for a unicast request.
+fn serve(
+    axis: usize,
+    pdu: &[u8],
+    out: &mut Vec<u8, ADU_MAX>,
+    stats: &mut Stats,
+    target: &mut impl ModbusTarget,
+) -> Result<(), Exception> {
+    // Responses are at most 8 bytes: pushes into a 256-byte buffer cannot fail.
+    match parse(pdu)? {
+        Pdu::Read { address, quantity } => {
+            let query = map::read(address, quantity)?;
+            let value = target
+                .query(axis, query)
+                .ok_or(Exception::ServerDeviceFailure)?;
+            let mut regs = [0u8; 2 * map::REGISTERS_MAX];
+            let n = map::encode(value, &mut regs);
+            if n != 2 * usize::from(quantity) {
+                return Err(Exception::ServerDeviceFailure);
+            }
+            let count = u8::try_from(n).map_err(|_| Exception::ServerDeviceFailure)?;
+            let _ = out.push(READ_HOLDING_REGISTERS);
+            let _ = out.push(count);
+            let _ = out.extend_from_slice(regs.get(..n).unwrap_or(&[]));
+        }
+        Pdu::WriteSingle { address, data } => {
+            let req = map::write(address, 1, data)?;
+            execute(axis, req, stats, target)?;
+            // Echo of the request.
+            let _ = out.extend_from_slice(pdu);
+        }
+        Pdu::WriteMultiple {
+            address,
+            quantity,
+            data,
+        } => {
+            let req = map::write(address, quantity, data)?;
+            execute(axis, req, stats, target)?;
+            let _ = out.push(WRITE_MULTIPLE_REGISTERS);
+            let _ = out.extend_from_slice(&address.to_be_bytes());
+            let _ = out.extend_from_slice(&quantity.to_be_bytes());
+        }
+    }
+    Ok(())
+}
+
+/// Build the response ADU for server id `id` in `tx`.
+fn respond(
+    id: u8,
+    axis: usize,
+    pdu: &[u8],
+    tx: &mut Vec<u8, ADU_MAX>,
+    stats: &mut Stats,
+    target: &mut impl ModbusTarget,
+) {
+    tx.clear();
+    let _ = tx.push(id);
+    if let Err(e) = serve(axis, pdu, tx, stats, target) {
+        let function = pdu.first().copied().unwrap_or(0);
+        tx.clear();
+        let _ = tx.extend_from_slice(&[id, function | 0x80, e.code()]);
+        bump(&mut stats.exceptions);
+    } else {
+        bump(&mut stats.responses);
+    }
+    let crc = crc16(tx);
+    let _ = tx.extend_from_slice(&crc.to_le_bytes());
+}
+
+/// Execute a broadcast write on every axis; never answers.
+fn broadcast(pdu: &[u8], stats: &mut Stats, target: &mut impl ModbusTarget) {
+    let req = match parse(pdu) {
+        Ok(Pdu::WriteSingle { address, data }) => map::write(address, 1, data),
+        Ok(Pdu::WriteMultiple {
+            address,
+            quantity,
+            data,
+        }) => map::write(address, quantity, data),
+        Ok(Pdu::Read { .. }) | Err(_) => return,
+    };
+    let Ok(req) = req else {
+        return;
+    };
+    if let Request::SetAddress { current, .. } = req {
+        // Only the axis answering `current` now may take the new address;
+        // executing on every axis would let the axes that move onto
+        // `current` accept it too.
+        let axis = Some(current)
+            .filter(|id| (1..=ID_MAX).contains(id))
+            .and_then(|id| target.axis_for_id(id));
+        if let Some(axis) = axis {
+            let _ = execute(axis, req, stats, target);
+        }
+        return;
+    }
+    for axis in 0..target.axes() {
+        let _ = execute(axis, req, stats, target);
+    }
+}
+
+#[cfg(test)]
+mod tests;

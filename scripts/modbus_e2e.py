@@ -1,0 +1,174 @@
+#!/usr/bin/env python3
+"""End-to-end Modbus RTU scenario against the QEMU image, with pymodbus.
+
+Talks RTU frames (no MBAP header) over the TCP socket that QEMU's second
+`-serial` (USART2) listens on. Run by scripts/qemu-e2e; usable by hand
+against `cargo qemu`:
+
+    python3 scripts/modbus_e2e.py --port 5020
+
+The scenario (PoStep60 register map: address 0x00nn = command nn):
+  1. HW/FW info (0x000A, 3 registers) of axes 1 and 2: first register 0x0041.
+  2. Position (0x0040, 2 registers, high word first) of both: 0 after boot.
+  3. Max speed / acceleration / deceleration (0x0051..0x0053): axis 1 by FC
+     0x06, axis 2 by FC 0x10; read back through 0x0041..0x0043.
+  4. Target (0x0050, FC 0x10, 2 registers, high word first) on both axes.
+  5. Poll both positions until they equal their targets (timeout).
+  6. An unknown command (register 0x0099) gets exception 02.
+Exits non-zero on the first failure; prints per-request timings.
+"""
+
+import argparse
+import logging
+import statistics
+import sys
+import time
+
+import pymodbus
+from pymodbus import FramerType
+from pymodbus.client import ModbusTcpClient
+from pymodbus.pdu import ExceptionResponse
+
+HW_FW_INFO = 0x000A
+POSITION = 0x0040
+MAX_SPEED, ACC, DEC = 0x0041, 0x0042, 0x0043
+SET_POSITION = 0x0050
+SET_MAX_SPEED, SET_ACC, SET_DEC = 0x0051, 0x0052, 0x0053
+UNKNOWN = 0x0099
+
+# (server id, max speed steps/s, acc, dec steps/s², target steps)
+AXES = [
+    (1, 2000, 4000, 4000, 3000),
+    (2, 1500, 3000, 6000, -2000),
+]
+
+round_trips = []
+
+
+class Failure(Exception):
+    pass
+
+
+def timed(call, *args, **kwargs):
+    t = time.monotonic()
+    r = call(*args, **kwargs)
+    round_trips.append(time.monotonic() - t)
+    return r
+
+
+def read(client, address, count, sid):
+    r = timed(client.read_holding_registers, address, count=count, slave=sid)
+    if r.isError():
+        raise Failure(f"id {sid}: read 0x{address:04X} x{count} failed: {r}")
+    return r.registers
+
+
+def write_one(client, address, value, sid, multiple):
+    if multiple:
+        r = timed(client.write_registers, address, [value], slave=sid)
+    else:
+        r = timed(client.write_register, address, value, slave=sid)
+    if r.isError():
+        raise Failure(f"id {sid}: write 0x{address:04X} = {value} failed: {r}")
+
+
+def i32(words):
+    v = (words[0] << 16) | words[1]
+    return v - (1 << 32) if v & 0x8000_0000 else v
+
+
+def words(v):
+    v &= 0xFFFF_FFFF
+    return [v >> 16, v & 0xFFFF]
+
+
+def check(cond, what):
+    if not cond:
+        raise Failure(what)
+    print(f"ok: {what}")
+
+
+def scenario(client, move_timeout):
+    for sid, *_ in AXES:
+        info = read(client, HW_FW_INFO, 3, sid)
+        check(info[0] == 0x0041, f"id {sid}: HW/FW info {[hex(w) for w in info]} starts with 0x0041")
+    for sid, *_ in AXES:
+        pos = i32(read(client, POSITION, 2, sid))
+        check(pos == 0, f"id {sid}: position {pos} after boot")
+
+    for n, (sid, speed, acc, dec, _) in enumerate(AXES):
+        multiple = n % 2 == 1
+        for address, value in ((SET_MAX_SPEED, speed), (SET_ACC, acc), (SET_DEC, dec)):
+            write_one(client, address, value, sid, multiple)
+        back = [read(client, a, 1, sid)[0] for a in (MAX_SPEED, ACC, DEC)]
+        fc = "0x10" if multiple else "0x06"
+        check(back == [speed, acc, dec], f"id {sid}: max speed/acc/dec {back} written by FC {fc}")
+
+    start = time.monotonic()
+    for sid, *_, target in AXES:
+        r = timed(client.write_registers, SET_POSITION, words(target), slave=sid)
+        if r.isError():
+            raise Failure(f"id {sid}: set position {target} failed: {r}")
+    print(f"ok: targets {[(a[0], a[4]) for a in AXES]} written by FC 0x10")
+
+    polls = 0
+    while True:
+        positions = [i32(read(client, POSITION, 2, sid)) for sid, *_ in AXES]
+        polls += 1
+        if positions == [a[4] for a in AXES]:
+            break
+        if time.monotonic() - start > move_timeout:
+            raise Failure(f"positions {positions} after {move_timeout} s, targets {[a[4] for a in AXES]}")
+        time.sleep(0.05)
+    move_s = time.monotonic() - start
+    check(True, f"both axes arrived: positions {positions} after {move_s:.2f} s ({polls} polls)")
+
+    r = timed(client.read_holding_registers, UNKNOWN, count=1, slave=1)
+    check(
+        isinstance(r, ExceptionResponse) and r.exception_code == 2,
+        f"unknown command 0x{UNKNOWN:04X}: exception {getattr(r, 'exception_code', r)} (02 expected)",
+    )
+    return move_s
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--host", default="127.0.0.1")
+    ap.add_argument("--port", type=int, default=5020)
+    ap.add_argument("--timeout", type=float, default=2.0, help="response timeout per request, s")
+    ap.add_argument("--connect-timeout", type=float, default=20.0, help="s to wait for the port")
+    ap.add_argument("--move-timeout", type=float, default=30.0, help="s to wait for both axes")
+    args = ap.parse_args()
+    # pymodbus logs every exception response it decodes; the scenario checks them.
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+
+    print(f"pymodbus {pymodbus.__version__}, RTU framer over tcp {args.host}:{args.port}")
+    client = ModbusTcpClient(args.host, port=args.port, framer=FramerType.RTU, timeout=args.timeout, retries=0)
+    deadline = time.monotonic() + args.connect_timeout
+    while not client.connect():
+        if time.monotonic() > deadline:
+            print(f"FAIL: cannot connect to {args.host}:{args.port}", file=sys.stderr)
+            return 1
+        time.sleep(0.2)
+    t0 = time.monotonic()
+    try:
+        move_s = scenario(client, args.move_timeout)
+    except Failure as e:
+        print(f"FAIL: {e}", file=sys.stderr)
+        return 1
+    except Exception as e:  # pymodbus raises ModbusIOException on timeouts
+        print(f"FAIL: {type(e).__name__}: {e}", file=sys.stderr)
+        return 1
+    finally:
+        client.close()
+    rt = sorted(round_trips)
+    print(
+        f"pymodbus: {len(rt)} requests in {time.monotonic() - t0:.2f} s (move {move_s:.2f} s); "
+        f"round trip min {rt[0] * 1e3:.1f} / median {statistics.median(rt) * 1e3:.1f} / "
+        f"max {rt[-1] * 1e3:.1f} ms"
+    )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
