@@ -434,18 +434,45 @@ fn undervoltage_sets_the_uvlo_fault() {
 }
 
 #[test]
-fn write_settings_0x3f_hands_out_an_image_once_all_axes_rest() {
+fn write_settings_0x3f_is_refused_while_an_axis_moves() {
     let mut b = bench();
     let mut img = [0u8; IMAGE_LEN];
     b.write(A0, &[0x50, 0x10, 0x27, 0, 0]);
     b.run(5);
     b.write(A0, &[0x3F]);
-    assert!(!b.bridge.take_save(&mut img), "not while moving");
     b.settle(30_000);
+    assert!(!b.bridge.take_save(&mut img), "refused, not deferred");
+    assert_eq!(b.bridge.diag.refused, 1);
+}
+
+#[test]
+fn write_settings_0x3f_at_rest_hands_out_the_image_once() {
+    let mut b = bench();
+    let mut img = [0u8; IMAGE_LEN];
+    b.write(A0, &[0x51, 0xD0, 0x07]);
+    b.write(A0, &[0x3F]);
     assert!(b.bridge.take_save(&mut img));
     assert!(!b.bridge.take_save(&mut img), "once");
+    b.bridge.saved(true);
     let s = Settings::from_image(&img).unwrap();
     assert_eq!(s, b.bridge.settings());
+    assert_eq!(s.axes[0].max_speed, 2000);
+}
+
+#[test]
+fn nothing_can_start_a_move_while_settings_are_being_written() {
+    let mut b = bench();
+    let mut img = [0u8; IMAGE_LEN];
+    b.write(A0, &[0x3F]);
+    assert!(b.bridge.take_save(&mut img));
+    // The flash is being programmed: a Set position must not start a move.
+    b.write(A0, &[0x50, 0x10, 0x27, 0, 0]);
+    b.run(200);
+    assert_eq!(b.chip(0).abs_pos(), 0);
+    b.bridge.saved(true);
+    b.write(A0, &[0x50, 0x10, 0x27, 0, 0]);
+    b.settle(30_000);
+    assert_eq!(b.chip(0).abs_pos(), phys(10_000));
 }
 
 #[test]
@@ -514,11 +541,16 @@ fn stop_0x5f_stops_at_once_without_a_ramp() {
 }
 
 #[test]
-fn system_reset_0x60_is_requested_after_the_write() {
+fn system_reset_0x60_stops_every_axis_then_is_handed_out() {
     let mut b = bench();
     assert!(!b.bridge.take_reset());
+    b.write(A1, &[0x50, 0x40, 0x42, 0x0F, 0x00]);
+    b.run(500);
     b.write(A0, &[0x60]);
+    assert!(!b.bridge.take_reset(), "not while axis 1 moves");
+    b.run(20);
     assert!(b.bridge.take_reset());
+    assert_eq!(b.chip(1).speed_reg(), 0);
 }
 
 #[test]
@@ -730,4 +762,51 @@ fn auto_run_with_invert_runs_backwards() {
     );
     b.run(2000);
     assert!(b.chip(0).abs_pos() < 0);
+}
+
+#[test]
+fn stop_and_set_zero_keep_a_sleeping_axis_unpowered() {
+    let mut b = bench();
+    b.write(A0, &[0x03, 0x0F]);
+    b.run(10);
+    b.write(A0, &[0x5F]);
+    b.write(A0, &[0x5E]);
+    b.run(50);
+    assert!(b.chip(0).is_hiz());
+    assert_eq!(b.query(A0, 0x13, 1), [1]);
+}
+
+#[test]
+fn auto_run_does_not_start_on_a_faulted_axis() {
+    let mut b = bench();
+    b.write(A0, &[0x05, 6]);
+    b.chip_mut(0).inject(Fault::Overcurrent);
+    b.run(4);
+    b.write(A0, &[0x05, 4]);
+    b.write(A0, &[0x05, 6]); // requested speed 0 anyway; power-up path below
+    b.run(200);
+    assert_eq!(b.chip(0).abs_pos(), 0);
+    let mut s = Settings::FACTORY;
+    s.axes[0].mode = DriverMode::AutoRun;
+    s.axes[0].max_speed = 500;
+    let mut b = Bench::new(1, s);
+    b.chip_mut(0).inject(Fault::Overcurrent);
+    b.run(2000);
+    // It started at power-up, then the overcurrent stopped it and it stays stopped.
+    let p = b.chip(0).abs_pos();
+    b.run(1000);
+    assert_eq!(b.chip(0).abs_pos(), p);
+}
+
+#[test]
+fn thermal_shutdown_stays_latched_after_cooling_until_reset() {
+    let mut b = bench();
+    b.chip_mut(0).inject(Fault::ThermalShutdown);
+    b.run(4);
+    b.chip_mut(0).inject(Fault::ThermalNormal);
+    b.run(10);
+    assert_eq!(b.query(A0, 0x25, 1)[0] & 1, 1);
+    b.write(A0, &[0x35]);
+    b.run(4);
+    assert_eq!(b.query(A0, 0x25, 1), [0]);
 }

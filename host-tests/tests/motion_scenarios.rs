@@ -60,28 +60,39 @@ fn limits_full(cfg: &AxisConfig, v: u32, a: u32, d: u32) -> Limits {
 }
 
 /// Every chip sits exactly on its axis's required position, and the axis
-/// reports it.
-fn assert_landed(rig: &mut Rig, seq: usize) {
+/// reports it. An axis stopped at once (`held`) stays where the chip stopped,
+/// which lies within one logical step above the reported position.
+fn assert_landed(rig: &mut Rig, seq: usize, held: &[bool]) {
     for k in 0..rig.group.len() {
         let axis = rig.group.axis(k).unwrap();
         let c = axis.config();
         let want = logical_to_physical(axis.required_position(), c.logical_shift, c.step);
         let abs = rig.chain.bus().device(k).unwrap().abs_pos();
         assert_eq!(
-            abs,
-            sign_extend_22(wrap_22(want as i32)),
-            "sequence {seq}, axis {k}: ABS_POS {abs} != target {want}"
-        );
-        assert_eq!(
             rig.chip_position(k),
-            want,
-            "sequence {seq}, axis {k}: wide position"
-        );
-        assert_eq!(
             axis.chip_position(),
-            want,
             "sequence {seq}, axis {k}: axis read-back"
         );
+        assert_eq!(
+            i64::from(abs),
+            i64::from(sign_extend_22(wrap_22(rig.chip_position(k) as i32))),
+            "sequence {seq}, axis {k}: wide position"
+        );
+        if held[k] {
+            let step = logical_to_physical(1, c.logical_shift, c.step).max(1);
+            let off = rig.chip_position(k) - want;
+            assert!(
+                (0..step).contains(&off),
+                "sequence {seq}, axis {k}: held at {} for required {want}",
+                rig.chip_position(k)
+            );
+        } else {
+            assert_eq!(
+                abs,
+                sign_extend_22(wrap_22(want as i32)),
+                "sequence {seq}, axis {k}: ABS_POS {abs} != target {want}"
+            );
+        }
         assert!(!rig.chain.bus().device(k).unwrap().is_busy());
     }
 }
@@ -95,6 +106,7 @@ fn a_thousand_random_sequences_land_exactly_with_following_error_below_one_full_
     let mut beyond_2_21 = 0;
     let mut reversals = 0;
     for seq in 0..1000 {
+        let mut held = [false; 4];
         for k in 0..4 {
             let c = axes[k];
             // New limits between moves (chip ACC/DEC are written at rest).
@@ -142,12 +154,15 @@ fn a_thousand_random_sequences_land_exactly_with_following_error_below_one_full_
                     });
                 }
                 3 => rig.axis(k).soft_stop(),
-                4 => rig.axis(k).stop_now(),
+                4 => {
+                    rig.axis(k).stop_now();
+                    held[k] = true;
+                }
                 _ => {}
             }
         }
         rig.run_until_settled(200_000);
-        assert_landed(&mut rig, seq);
+        assert_landed(&mut rig, seq, &held);
         for k in 0..4 {
             assert_eq!(
                 rig.group.axis(k).unwrap().fault(),
@@ -250,4 +265,97 @@ fn overcurrent_mid_move_stops_the_axis_and_reports_it() {
         Some(AxisFault::Overcurrent)
     );
     assert!(rig.group.axis(0).unwrap().profile().velocity() == 0);
+}
+
+#[test]
+fn overcurrent_switches_the_bridges_off_and_does_not_land() {
+    let axes = [cfg(7, StepSel::OneTwentyEighth, DriveMode::Voltage)];
+    let mut rig = Rig::new(&axes, limits_full(&axes[0], 2000, 10_000, 10_000));
+    rig.axis(0).move_to(1_000_000);
+    rig.run(200);
+    rig.chain
+        .bus_mut()
+        .device_mut(0)
+        .unwrap()
+        .inject(Fault::Overcurrent);
+    rig.run(20);
+    let dev = rig.chain.bus().device(0).unwrap();
+    assert!(dev.is_hiz(), "bridges off after an overcurrent");
+    let p = dev.abs_pos();
+    rig.run(500);
+    assert_eq!(
+        rig.chain.bus().device(0).unwrap().abs_pos(),
+        p,
+        "no landing move"
+    );
+    assert!(rig.chain.bus().device(0).unwrap().is_hiz());
+}
+
+/// A chain bus that can be told to fail its next window.
+struct Flaky {
+    sim: bridge_logic::sim::SimChain,
+    fail_next: bool,
+}
+
+impl bridge_logic::powerstep::ChainBus for Flaky {
+    type Error = ();
+    fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), ()> {
+        if std::mem::take(&mut self.fail_next) {
+            return Err(());
+        }
+        self.sim.transfer(tx, rx);
+        Ok(())
+    }
+}
+
+#[test]
+fn a_chain_error_sets_every_chip_up_again_and_moves_still_land() {
+    use bridge_logic::motion::{Axis, AxisGroup, AxisState};
+    use bridge_logic::powerstep::Chain;
+    let c = cfg(4, StepSel::OneTwentyEighth, DriveMode::Voltage);
+    let mut chain = Chain::new(Flaky {
+        sim: bridge_logic::sim::SimChain::new(2),
+        fail_next: false,
+    });
+    assert_eq!(chain.detect(), Ok(2));
+    let mut group = AxisGroup::new();
+    for _ in 0..2 {
+        let _ = group.push(Axis::new(c, limits_full(&c, 2000, 10_000, 10_000)));
+    }
+    let tick = |group: &mut AxisGroup, chain: &mut Chain<Flaky>| {
+        let _ = group.tick(chain);
+        chain.bus_mut().sim.advance(1_000_000);
+    };
+    for _ in 0..10 {
+        tick(&mut group, &mut chain);
+    }
+    group.axis_mut(0).unwrap().move_to(40_000);
+    for _ in 0..300 {
+        tick(&mut group, &mut chain);
+    }
+    chain.bus_mut().fail_next = true;
+    tick(&mut group, &mut chain);
+    assert_eq!(group.axis(0).unwrap().fault(), Some(AxisFault::ChainError));
+    assert!(matches!(
+        group.axis(0).unwrap().state(),
+        AxisState::Setup(_)
+    ));
+    for _ in 0..20 {
+        tick(&mut group, &mut chain);
+    }
+    // The chip was stopped (HardHiZ at setup) and set up again.
+    let held = group.axis(0).unwrap().chip_position();
+    assert_eq!(
+        i64::from(chain.bus().sim.device(0).unwrap().abs_pos()),
+        held
+    );
+    group.axis_mut(0).unwrap().move_to(50_000);
+    for _ in 0..30_000 {
+        tick(&mut group, &mut chain);
+        if group.is_settled() {
+            break;
+        }
+    }
+    assert!(group.is_settled());
+    assert_eq!(chain.bus().sim.device(0).unwrap().abs_pos(), 50_000 * 8);
 }

@@ -13,10 +13,14 @@
 //!   ended and survives a reset only after Write settings.
 //! * **Bad input** on any bus changes nothing and is counted in
 //!   [`Diagnostics`]; reads after an unknown I2C command return zeros.
-//! * **Saving** never happens implicitly: Write settings marks a save as
-//!   pending, and [`Bridge::take_save`] hands out the image only once every
-//!   axis is at rest, because erasing flash stalls the CPU (and with it the
-//!   control loop) for up to seconds.
+//! * **Saving** never happens implicitly: Write settings is refused (Busy)
+//!   while any axis moves, otherwise it marks a save as pending;
+//!   [`Bridge::take_save`] hands out the image only while every axis is at
+//!   rest, and from then until [`Bridge::saved`] every request is refused
+//!   (Busy), because erasing flash stalls the CPU — and with it the control
+//!   loop — for up to 4 s, and no motor may start moving just before that.
+//! * **System reset** stops every axis at once and is handed out by
+//!   [`Bridge::take_reset`] only when they have stopped.
 //! * **Time** is passed in: `tick(now_ms)` once per control period.
 
 use heapless::Vec;
@@ -113,6 +117,9 @@ pub fn boot_settings<E>(
     }
 }
 
+/// Failed control ticks in a row after which the chain counts as dead.
+pub const CHAIN_DEAD_TICKS: u32 = 10;
+
 /// Highest Modbus server id.
 pub const MODBUS_ID_MAX: u8 = 247;
 /// Highest I2C address a PoStep60 accepts.
@@ -130,9 +137,13 @@ pub struct Bridge<B: ChainBus> {
     temperature: u16,
     ports: [Port; 2],
     save_pending: bool,
+    /// An image was handed out and is being written: requests wait.
+    saving: bool,
     reset_pending: bool,
     addresses_changed: bool,
     chain_error: Option<ChainError<B::Error>>,
+    /// Control ticks in a row whose chain batch failed.
+    failed_ticks: u32,
     source: SettingsSource,
     pub diag: Diagnostics,
 }
@@ -199,9 +210,11 @@ impl<B: ChainBus> Bridge<B> {
                 },
             ],
             save_pending: false,
+            saving: false,
             reset_pending: false,
             addresses_changed: false,
             chain_error,
+            failed_ticks: 0,
             source,
             diag: Diagnostics::default(),
         }
@@ -264,9 +277,14 @@ impl<B: ChainBus> Bridge<B> {
         core::mem::take(&mut self.addresses_changed)
     }
 
-    /// True once after System reset was requested (reset after the reply).
+    /// True once System reset was requested and every axis has stopped
+    /// (the request stops them all first): reset now.
     pub fn take_reset(&mut self) -> bool {
-        core::mem::take(&mut self.reset_pending)
+        if !self.reset_pending || !self.group.is_settled() {
+            return false;
+        }
+        self.reset_pending = false;
+        true
     }
 
     /// The settings image to store, once a save is pending and every axis is
@@ -276,12 +294,16 @@ impl<B: ChainBus> Bridge<B> {
             return false;
         }
         self.save_pending = false;
+        // Until `saved`, every request is refused (Busy): nothing may start a
+        // move while flash programming is about to stall the CPU.
+        self.saving = true;
         self.settings().to_image(out);
         true
     }
 
     /// Outcome of a save handed out by [`Bridge::take_save`].
     pub fn saved(&mut self, ok: bool) {
+        self.saving = false;
         if ok {
             self.diag.saves = self.diag.saves.saturating_add(1);
         } else {
@@ -319,8 +341,11 @@ impl<B: ChainBus> Bridge<B> {
         self.temperature = analog::temperature_units(sample, self.board.analog);
     }
 
-    /// New BIN button levels of one axis.
+    /// New BIN button levels of one axis (ignored while settings are saved).
     pub fn on_inputs(&mut self, k: usize, inputs: Inputs) {
+        if self.saving {
+            return;
+        }
         if let (Some(d), Some(a)) = (self.devices.get_mut(k), self.group.axis_mut(k)) {
             d.set_inputs(inputs, a);
         }
@@ -333,20 +358,47 @@ impl<B: ChainBus> Bridge<B> {
                 d.tick(now_ms, a, &self.board, self.temperature);
             }
         }
-        if !self.devices.is_empty() && self.group.tick(&mut self.chain).is_err() {
-            self.diag.chain_errors = self.diag.chain_errors.saturating_add(1);
+        if self.devices.is_empty() {
+            return;
         }
+        if self.group.tick(&mut self.chain).is_err() {
+            self.diag.chain_errors = self.diag.chain_errors.saturating_add(1);
+            self.failed_ticks = self.failed_ticks.saturating_add(1);
+        } else {
+            self.failed_ticks = 0;
+        }
+    }
+
+    /// The chain has failed for [`CHAIN_DEAD_TICKS`] ticks in a row: the
+    /// bridge can no longer stop the motors over SPI, so the firmware must
+    /// hold the chips in reset (STBY low), which switches their bridges off.
+    pub fn chain_dead(&self) -> bool {
+        self.failed_ticks >= CHAIN_DEAD_TICKS
     }
 
     /// Execute a request on axis `k` (any bus).
     pub fn request(&mut self, k: usize, req: Request) -> Result<Effect, CommandError> {
+        let busy = self.saving || (req == Request::WriteSettings && !self.group.is_settled());
+        if busy {
+            self.diag.refused = self.diag.refused.saturating_add(1);
+            return Err(CommandError::Busy);
+        }
         let (Some(d), Some(a)) = (self.devices.get_mut(k), self.group.axis_mut(k)) else {
             return Err(CommandError::Unsupported);
         };
         let result = d.apply(req, a, &self.board);
         match result {
             Ok(Effect::SaveSettings) => self.save_pending = true,
-            Ok(Effect::SystemReset) => self.reset_pending = true,
+            Ok(Effect::SystemReset) => {
+                // Stop every axis first: a reset must not leave a chip running
+                // on its last Run while the MCU restarts.
+                self.reset_pending = true;
+                for i in 0..self.group.len() {
+                    if let Some(a) = self.group.axis_mut(i) {
+                        a.stop_now();
+                    }
+                }
+            }
             Ok(Effect::SetAddress { current, new }) => {
                 if let Err(e) = self.change_address(k, current, new) {
                     self.diag.refused = self.diag.refused.saturating_add(1);

@@ -113,7 +113,16 @@ pub const fn correction_speed_reg(e: i64, tick_us: u32, step: StepSel, ticks: i6
     if div <= 0 {
         return 0;
     }
-    // full steps/s = e · 10⁶ / (2^S · div); reg = that · 2²⁸ / 4·10⁶
+    // full steps/s = e · 10⁶ / (2^S · div); reg = that · 2²⁸ / 4·10⁶.
+    // |e| beyond 2³⁰ microsteps is no following error but a lost position:
+    // clamp so the shift cannot overflow (the speed saturates anyway).
+    let e = if e > 1 << 30 {
+        1 << 30
+    } else if e < -(1 << 30) {
+        -(1 << 30)
+    } else {
+        e
+    };
     (e << 26) / (div << step.shift())
 }
 
@@ -174,6 +183,8 @@ pub enum AxisFault {
     Overcurrent,
     /// Thermal bridge or device shutdown.
     Thermal,
+    /// The chain's SPI transfer failed; the chip was set up again.
+    ChainError,
 }
 
 /// Which read-back is in flight this tick.
@@ -216,16 +227,17 @@ pub struct Axis {
     /// One-shot command to send at the next plan.
     pending: Option<Command>,
     after_stop: AfterStop,
-    /// Tick of the last one-shot command, the last STATUS and ABS_POS reads.
-    sent_at: u32,
-    status_at: u32,
-    pos_at: u32,
+    /// Tick of the last one-shot command, the last STATUS and ABS_POS reads
+    /// (u64: never wraps, so the ordering checks hold for any uptime).
+    sent_at: u64,
+    status_at: u64,
+    pos_at: u64,
     /// Chip MAX_SPEED, ACC, DEC as written (register values).
     chip_limits: (u32, u32, u32),
     /// (profile max speed, its MAX_SPEED backstop register), cached.
     backstop: (u32, u32),
     fault: Option<AxisFault>,
-    tick: u32,
+    tick: u64,
     /// CONFIG register value written at setup (None: leave the chip's).
     chip_config: Option<u16>,
     /// Register writes (WR registers only) waiting for a free command slot.
@@ -234,6 +246,9 @@ pub struct Axis {
     idle_command: Option<Command>,
     /// Bridges switched off on request: motion commands are not executed.
     asleep: bool,
+    /// Bridges switched off after an overcurrent/thermal shutdown (until the
+    /// chip reports healthy again).
+    chip_off_for_fault: bool,
     /// Chip resets / undervoltages detected since boot.
     resets: u32,
 }
@@ -271,6 +286,7 @@ impl Axis {
             writes: Deque::new(),
             idle_command: None,
             asleep: false,
+            chip_off_for_fault: false,
             resets: 0,
         }
     }
@@ -405,24 +421,54 @@ impl Axis {
         self.profile.set_position(here);
         self.chip_limits = (0, 0, 0);
         self.backstop = (0, 0);
-        if !matches!(self.state, AxisState::Setup(_) | AxisState::Idle) && !self.asleep {
-            self.stop_then(AfterStop::Land, Command::HardStop);
+        if !matches!(self.state, AxisState::Setup(_) | AxisState::Idle) {
+            self.stop_then(AfterStop::Hold, self.stop_command());
         }
     }
     /// Decelerate to a stop with the profile's deceleration.
     pub fn soft_stop(&mut self) {
         self.profile.soft_stop();
     }
-    /// Stop at once, no ramp (HardStop), then hold on the logical step where
-    /// the chip stopped.
+    /// Stop at once, no ramp (HardStop), and hold where the chip stopped
+    /// (no landing move: after an end switch that could go back into it).
+    /// An axis that is asleep stays in HiZ.
     pub fn stop_now(&mut self) {
         self.profile.stop_now();
-        self.stop_then(AfterStop::Land, Command::HardStop);
+        self.stop_then(AfterStop::Hold, self.stop_command());
     }
     /// Stop at once and make the current position zero.
     pub fn set_zero(&mut self) {
         self.profile.stop_now();
-        self.stop_then(AfterStop::Zero, Command::HardStop);
+        self.stop_then(AfterStop::Zero, self.stop_command());
+    }
+
+    /// HardStop holds the motor; asleep, the bridges must stay off.
+    fn stop_command(&self) -> Command {
+        if self.asleep {
+            Command::HardHiZ
+        } else {
+            Command::HardStop
+        }
+    }
+
+    /// The chain failed this tick: the chip may have missed commands or be
+    /// out of step. Stop the profile where the axis last was and run the chip
+    /// setup again (HardHiZ, configuration, ABS_POS re-based to the axis
+    /// position), then hold again unless asleep.
+    pub fn on_chain_error(&mut self) {
+        self.fault = Some(AxisFault::ChainError);
+        self.profile.stop_now();
+        let here = self.actual_position();
+        self.profile.set_position(here);
+        self.raw = None;
+        self.error = 0;
+        self.pending = None;
+        self.read = None;
+        self.chip_limits = (0, 0, 0);
+        self.state = AxisState::Setup(0);
+        if !self.asleep {
+            self.idle_command = Some(Command::HardStop);
+        }
     }
     /// New limits: the profile uses them at the next tick; the chip's ACC/DEC
     /// follow at the next start from rest (writable only while stopped), its
@@ -771,10 +817,15 @@ impl Axis {
             } else {
                 AxisFault::Thermal
             });
-            if !self.profile.is_settled() || self.state == AxisState::Streaming {
+            // The power stage is in trouble: bridges off (they may already be,
+            // with OC_SD), hold where the chip is, no landing move.
+            if !matches!(self.state, AxisState::Setup(_)) && !self.chip_off_for_fault {
                 self.profile.stop_now();
-                self.stop_then(AfterStop::Land, Command::HardStop);
+                self.chip_off_for_fault = true;
+                self.stop_then(AfterStop::Hold, Command::HardHiZ);
             }
+        } else {
+            self.chip_off_for_fault = false;
         }
         self.pos_at_status = self.chip_pos;
     }

@@ -109,11 +109,13 @@ impl AxisGroup {
             sync_window: self.plan.sync_window(),
         };
         let result = chain.run_into(&self.plan, &mut self.replies);
-        if result.is_err() {
-            self.replies = Replies::default();
-        }
         for (d, axis) in self.axes.iter_mut().enumerate() {
-            axis.absorb(&self.replies, d);
+            if result.is_ok() {
+                axis.absorb(&self.replies, d);
+            } else {
+                // Some chips may have missed commands: set every chip up again.
+                axis.on_chain_error();
+            }
         }
         result.map(|()| report)
     }

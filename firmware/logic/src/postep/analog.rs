@@ -41,7 +41,12 @@ pub const fn vdda_microvolts(vrefint_raw: u16) -> u32 {
     if vrefint_raw == 0 {
         return 0;
     }
-    ((VREFINT_UV as u64 * FULL_SCALE as u64) / vrefint_raw as u64) as u32
+    let uv = (VREFINT_UV as u64 * FULL_SCALE as u64) / vrefint_raw as u64;
+    if uv > u32::MAX as u64 {
+        u32::MAX
+    } else {
+        uv as u32
+    }
 }
 
 /// Pin voltage in µV of a raw sample at the given VDDA.

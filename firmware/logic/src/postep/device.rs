@@ -18,10 +18,11 @@
 //!   bridges in HiZ until the first motion.
 //! * **Faults** (0x25) are latched from the chip's STATUS: OTS ← thermal
 //!   bridge/device shutdown, AOCP and BOCP ← OCD (the chip has one detector
-//!   for both bridges), UVLO ← UVLO or ADC UVLO, STD ← stall now, STDLAT ←
+//!   for both bridges), UVLO ← UVLO or a detected chip reset (not ADC UVLO:
+//!   an unused ADCIN may read as undervoltage for good), STD ← stall now, STDLAT ←
 //!   stall since the last reset. APDF/BPDF never set. Faults 0–5 stop the axis
-//!   and refuse motion until Reset faults (0x35); OTS stays while the chip is
-//!   still hot; STD/STDLAT do not stop anything.
+//!   and refuse motion until Reset faults (0x35), which cannot clear OTS while
+//!   the chip is still hot; STD/STDLAT do not stop anything.
 //! * **Currents**: full-scale current while active; the hold current drops to
 //!   the idle current 10 s after the last motion (driver status 3); above the
 //!   temperature limit run and hold currents drop to the overheat current
@@ -173,6 +174,9 @@ pub enum CommandError {
     Unsupported,
     /// Address change: BYTE0 is not this axis's address, or the new one is invalid.
     BadAddress,
+    /// The bridge is saving settings (flash programming stalls the CPU) or an
+    /// axis is moving when Write settings arrives: try again at rest.
+    Busy,
 }
 
 /// What the bridge must do after a request succeeded.
@@ -285,7 +289,7 @@ impl Device {
             self.watch_end_switch(axis);
             if !self.auto_started {
                 self.auto_started = true;
-                if self.settings.mode == DriverMode::AutoRun && self.running {
+                if self.settings.mode == DriverMode::AutoRun && self.blocked().is_ok() {
                     // Power-up: max speed applies, not the requested speed (7.5.3).
                     let v = i32::try_from(self.settings.max_speed).unwrap_or(i32::MAX);
                     self.run_auto(axis, v);
@@ -337,7 +341,9 @@ impl Device {
         if s.overcurrent() {
             f |= fault::AOCP | fault::BOCP;
         }
-        if s.uvlo() || s.uvlo_adc() {
+        // UVLO_ADC is not a fault here: with ADCIN unused it may read
+        // asserted for good (facts doc §2, the 0xE012 observation).
+        if s.uvlo() {
             f |= fault::UVLO;
         }
         let newly = f & !self.faults & fault::STOPPING;
@@ -347,13 +353,6 @@ impl Device {
             self.faults |= fault::STD | fault::STDLAT;
         } else {
             self.faults &= !fault::STD;
-        }
-        // OTS clears by itself once the chip has cooled down.
-        if !matches!(
-            s.thermal(),
-            ThermalStatus::BridgeShutdown | ThermalStatus::DeviceShutdown
-        ) {
-            self.faults &= !fault::OTS;
         }
         if newly != 0 && !axis.is_settled() {
             axis.stop_now();
@@ -450,7 +449,10 @@ impl Device {
                     if was == DriverMode::AutoRun && m != DriverMode::AutoRun {
                         axis.soft_stop();
                     }
-                    if m == DriverMode::AutoRun && was != DriverMode::AutoRun && self.running {
+                    if m == DriverMode::AutoRun
+                        && was != DriverMode::AutoRun
+                        && self.blocked().is_ok()
+                    {
                         self.run_auto(axis, i32::from(self.settings.requested_speed));
                     }
                 }

@@ -267,7 +267,8 @@ impl Settings {
         }
         let (&base_address, rest) = rest.split_first().ok_or(ImageError::Invalid)?;
         let (&serial, rest) = rest.split_first().ok_or(ImageError::Invalid)?;
-        if !(1..=247).contains(&base_address) {
+        // Axis 0's address: an I2C address (1..=127), as 0x04 sets it.
+        if !(1..=127).contains(&base_address) {
             return Err(ImageError::Invalid);
         }
         let serial = Serial::from_code(serial).ok_or(ImageError::Invalid)?;
@@ -337,7 +338,7 @@ mod tests {
     #[test]
     fn every_field_survives_the_image() {
         let mut s = Settings::FACTORY;
-        s.base_address = 200;
+        s.base_address = 127;
         s.serial = Serial::from_code(5).unwrap();
         s.axes[3] = AxisSettings {
             full_scale: Current { tq: 184, ai: 1 },

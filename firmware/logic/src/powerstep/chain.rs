@@ -20,9 +20,10 @@
 //!   Non-response commands (e.g. the argument bytes of Run) overlap a pending
 //!   response freely — that is how position read-back costs no extra window.
 //! * **Recovery.** If the bus fails inside a batch the chain is marked out of
-//!   step; the next call first resynchronises (NOP windows to finish any
-//!   half-sent command, then HardStop to every device so nothing keeps
-//!   moving on stale orders, then GetStatus to clear CMD_ERROR).
+//!   step; the next call first clocks three NOP windows, which finish any
+//!   half-received command. What the chips must do next (the axes set every
+//!   chip up again, starting with HardHiZ) is decided above this layer; the
+//!   chain reads no STATUS on its own, so no latched flag is lost.
 //!
 //! Assumptions: a batch completes every command it starts, and the bus
 //! driver raises CS for ≥ 800 ns (t_disCS) between windows.
@@ -253,7 +254,7 @@ impl Plan {
         self.sync_window = sync.saturating_sub(1) as u8;
         for (d, l) in layouts.iter().enumerate().take(n) {
             let offset = sync - l.len;
-            let slot = n - 1 - d; // position of device d inside a window
+            let slot = n - 1 - d; // d < n: position of device d inside a window
             for (index, (cmd, &start)) in batch.commands(d).iter().zip(l.starts.iter()).enumerate()
             {
                 let at = offset + usize::from(start);
@@ -321,7 +322,9 @@ impl Plan {
         replies.items = [[None; MAX_COMMANDS]; MAX_DEVICES];
         let n = self.devices();
         for r in self.reads.iter() {
-            let slot = n - 1 - usize::from(r.device);
+            let Some(slot) = n.checked_sub(1 + usize::from(r.device)) else {
+                continue;
+            };
             let mut value = 0u32;
             for k in 0..usize::from(r.len) {
                 let byte = rx
@@ -542,7 +545,8 @@ impl<B: ChainBus> Chain<B> {
         self.execute(&Batch::all(self.len(), Command::GetStatus))
     }
 
-    /// Bring the chain back in step after a failed transfer (module docs).
+    /// Bring the chain back in step after a failed transfer: three NOP
+    /// windows finish any half-received command (module docs).
     pub fn resync(&mut self) -> Result<(), ChainError<B::Error>> {
         let n = self.len();
         let nops = [0u8; MAX_DEVICES];
@@ -554,13 +558,6 @@ impl<B: ChainBus> Chain<B> {
             self.bus.window(tx, rx).map_err(ChainError::Bus)?;
         }
         self.out_of_step = false;
-        for cmd in [Command::HardStop, Command::GetStatus] {
-            let plan = Plan::new(&Batch::all(n, cmd)).map_err(ChainError::Schedule)?;
-            if let Err(e) = self.run(&plan) {
-                self.out_of_step = true;
-                return Err(e);
-            }
-        }
         Ok(())
     }
 }

@@ -54,7 +54,8 @@ impl Exception {
             | CommandError::Asleep
             | CommandError::Faulted
             | CommandError::Unsupported
-            | CommandError::BadAddress => Some(Exception::ServerDeviceFailure),
+            | CommandError::BadAddress
+            | CommandError::Busy => Some(Exception::ServerDeviceFailure),
         }
     }
 }

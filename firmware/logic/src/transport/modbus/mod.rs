@@ -158,6 +158,8 @@ pub struct Stats {
     pub crc_errors: u32,
     /// Frames with silence > t1.5 inside (dropped).
     pub gaps: u32,
+    /// Frames with a character received in error (dropped).
+    pub bad_characters: u32,
     /// Frames longer than [`ADU_MAX`], or ended frames replaced before
     /// `poll` ran (dropped).
     pub overruns: u32,
@@ -177,6 +179,7 @@ impl Stats {
     const ZERO: Stats = Stats {
         frames_ok: 0,
         crc_errors: 0,
+        bad_characters: 0,
         gaps: 0,
         overruns: 0,
         other_ids: 0,
@@ -210,6 +213,9 @@ pub trait ModbusTarget {
 enum Fault {
     /// Silence > t1.5 inside the frame.
     Gap,
+    /// A character arrived with a parity, framing or noise error (or was lost
+    /// to an overrun): the frame must be discarded whatever its CRC says.
+    BadCharacter,
     /// More than [`ADU_MAX`] bytes.
     Overlong,
 }
@@ -324,6 +330,17 @@ impl RtuServer {
         self.rx.last_us = now_us;
     }
 
+    /// RX interrupt: a character arrived with a parity, framing or noise
+    /// error, or characters were lost to an overrun, at `now_us`. The frame it
+    /// belongs to is discarded at its end (Modbus serial line spec §2.5.1.2),
+    /// even if the remaining bytes happen to pass the CRC.
+    pub fn on_bad_byte(&mut self, now_us: u64) {
+        self.on_byte(0, now_us);
+        if self.rx.fault.is_none() {
+            self.rx.fault = Some(Fault::BadCharacter);
+        }
+    }
+
     /// When `poll` should run next: t3.5 after the last byte of a frame in
     /// progress (already passed if an ended frame is waiting).
     pub fn deadline(&self) -> Option<u64> {
@@ -375,6 +392,7 @@ fn process(
 ) {
     match frame.fault {
         Some(Fault::Gap) => return bump(&mut stats.gaps),
+        Some(Fault::BadCharacter) => return bump(&mut stats.bad_characters),
         Some(Fault::Overlong) => return bump(&mut stats.overruns),
         None => {}
     }

@@ -195,6 +195,23 @@ fn a_gap_over_t15_drops_the_whole_frame_and_the_next_one_is_answered() {
 }
 
 #[test]
+fn a_character_received_in_error_drops_the_frame_even_if_the_crc_still_matches() {
+    let mut s = RtuServer::new(T9600);
+    let mut r = Recorder::default();
+    // A valid Set position frame, plus one character the UART flagged as bad:
+    // the remaining bytes still carry a good CRC, but the frame must go.
+    let f = adu(&[1, 0x06, 0x00, 0x5F, 0, 1]);
+    let t = feed(&mut s, &f, 0);
+    s.on_bad_byte(t + CHAR);
+    let at = s.deadline().unwrap_or(t);
+    assert_eq!(s.poll(at, &mut r), None);
+    assert_eq!(s.stats().bad_characters, 1);
+    assert!(r.requests.is_empty());
+    let (resp, _) = transact(&mut s, &mut r, &f, at + 10_000);
+    assert_eq!(resp, Some(f));
+}
+
+#[test]
 fn the_tail_after_a_gap_is_not_taken_for_a_request() {
     let mut s = RtuServer::new(T9600);
     let mut r = Recorder::default();
