@@ -57,7 +57,11 @@ pub type ChainMiso = gpio::PA6<Alternate<5>>;
 pub type ChainMosi = gpio::PA7<Alternate<5>>;
 /// Chain chip select (software NSS), push-pull, idle high, common to all chips.
 pub type ChainCs = gpio::PA4<Output<PushPull>>;
-/// Chain STBY/RESET, push-pull, active low: low holds every chip in reset.
+/// Chain STBY/RESET, push-pull, active low: low holds every chip in reset
+/// (power bridges off). Driven low from `configure` on; until then (reset,
+/// boot) the pin floats, so the board needs a pull-down on STBY to keep the
+/// chips in reset — through a watchdog reset too. `failsafe` drives it
+/// directly (GPIOC's BSRR), so it must stay on port C.
 pub type ChainStby = gpio::PC4<Output<PushPull>>;
 /// Chain FLAG, input with pull-up; open-drain wired-OR, low = some alarm.
 pub type ChainFlag = gpio::PC5<Input>;

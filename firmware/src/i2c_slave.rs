@@ -83,9 +83,12 @@
 //!
 //! * `on_event` and `on_error` never preempt each other (bind both
 //!   interrupts at the same priority).
-//! * [`I2cSlaveDriver::set_addresses`] is called between transactions (the
-//!   bridge changes its address after the reply); a change takes effect at
-//!   the next address phase.
+//! * [`I2cSlaveDriver::set_addresses`] is called from a task that never
+//!   preempts the handlers (the same priority): by the I2C event task after
+//!   a write that changed the address base (between transactions: the bridge
+//!   changes its address after the reply), or by the Modbus server task at
+//!   any time. A change takes effect at the next address phase; a
+//!   transaction already addressed goes on to its end.
 //! * The pins come configured from [`crate::board::host_i2c_pins`].
 
 // Register access goes through the owned `pac::I2C1`, which needs no unsafe;

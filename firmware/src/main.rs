@@ -9,7 +9,9 @@
 //!   from the flash store, the bridge (chain detection and axis setup), I2C
 //!   slave, Modbus line, ADC, timer.
 //! * `control_tick` (TIM2 update, 1 kHz, priority 3): `bridge.tick(now)`: one
-//!   chain batch for every axis; LED; spawns the slow jobs.
+//!   chain batch for every axis; STBY low for good once the bridge declares
+//!   the chain dead; LED; feeds the independent watchdog; spawns the slow
+//!   jobs.
 //! * `modbus_uart` (USART2, priority 4): every received byte is stamped with
 //!   the monotonic's µs and handed to the Modbus RTU server; the response
 //!   goes out by TXE/TC interrupts with DE high (see `rs485`). Highest
@@ -17,7 +19,8 @@
 //!   characters (a pause > t1.5 would break the frame).
 //! * `modbus_server` (async, priority 2): sleeps until the server's t3.5
 //!   deadline, then locks the bridge only for `poll` (which executes the
-//!   request) and starts the response at once.
+//!   request) and starts the response at once; a changed address base goes
+//!   on to the I2C slave's own addresses.
 //! * `i2c_event` / `i2c_error` (I2C1, priority 2): bytes in and out of the
 //!   PoStep60 I2C protocol; the bridge is locked only to execute a write or
 //!   prepare a read.
@@ -25,6 +28,10 @@
 //!   system reset — the last two only while no Modbus response is going out.
 //! * `idle`: spins (no `wfi`, which stops the debug clock on some probes and
 //!   gains nothing while a 1 kHz tick keeps waking the core).
+//!
+//! A panic, and a HardFault on the board, drive STBY low first of all
+//! ([`failsafe`]); the independent watchdog (board only, started in `init`)
+//! resets the MCU if the control tick stops.
 //!
 //! With the `qemu` feature the same app runs on QEMU's `netduinoplus2`;
 //! [`qemu`] lists what is replaced (clocks, chain, ADC, flash, I2C, log
@@ -49,12 +56,12 @@ mod board;
 mod chain_spi;
 #[cfg(target_os = "none")]
 mod clock;
+#[cfg(target_os = "none")]
+mod failsafe;
 #[cfg(all(target_os = "none", not(feature = "qemu")))]
 mod flash_store;
-// Under QEMU never started, but compiled: RTIC's Send assertions name the
-// types of every resource, cfg'd out or not.
-#[cfg(target_os = "none")]
-#[cfg_attr(feature = "qemu", allow(dead_code))]
+// Under QEMU not built: `qemu::NoI2c` stands in for the driver.
+#[cfg(all(target_os = "none", not(feature = "qemu")))]
 mod i2c_slave;
 #[cfg(all(target_os = "none", feature = "qemu"))]
 mod qemu;
@@ -65,8 +72,6 @@ mod rs485;
 use defmt_rtt as _;
 #[cfg(all(target_os = "none", feature = "qemu"))]
 use defmt_semihosting as _;
-#[cfg(target_os = "none")]
-use panic_probe as _;
 
 #[cfg(not(target_os = "none"))]
 fn main() {
@@ -91,7 +96,7 @@ mod app {
 
     use crate::board;
     use crate::clock::{self, Mono};
-    use crate::rs485::Rs485;
+    use crate::rs485::{Rs485, Rx};
 
     // The board's peripherals, or their QEMU stand-ins (crate::qemu).
     #[cfg(not(feature = "qemu"))]
@@ -100,16 +105,20 @@ mod app {
     use crate::chain_spi::ChainSpiBus as ChainBus;
     #[cfg(not(feature = "qemu"))]
     use crate::flash_store::{SettingsStore, StoreFlash};
+    #[cfg(not(feature = "qemu"))]
+    use crate::i2c_slave::{I2cSlaveDriver, LockedTarget};
+    #[cfg(feature = "qemu")]
+    use crate::qemu::NoI2c as I2cSlaveDriver;
     #[cfg(feature = "qemu")]
     use crate::qemu::{FixedAnalog as Analog, RamFlash, SettingsStore, SimChain as ChainBus};
-    // (The resource types are named in both builds, see `mod i2c_slave`.)
-    use crate::i2c_slave::I2cSlaveDriver;
-    #[cfg(not(feature = "qemu"))]
-    use crate::i2c_slave::LockedTarget;
     use bridge_logic::transport::i2c::I2cSlave;
+    // (Named in both builds: RTIC's Send assertions name the types of every
+    // resource, cfg'd out or not.)
     use stm32f4xx_hal::timer::CounterHz;
+    use stm32f4xx_hal::watchdog::IndependentWatchdog;
     #[cfg(not(feature = "qemu"))]
     use stm32f4xx_hal::{
+        prelude::_fugit_ExtU32 as _,
         time::Hertz,
         timer::{Event, Flag, TimerExt},
         ClearFlags, Listen,
@@ -124,6 +133,23 @@ mod app {
     const WAKE_UP_MS: u32 = 20;
     /// Housekeeping (ADC, pending save, reset) every this many ticks (10 Hz).
     const HOUSEKEEPING_TICKS: u64 = TICK_HZ as u64 / 10;
+    /// Worst-case erase of a 128 KiB flash sector at x8 parallelism
+    /// (STM32F405 datasheet): a settings save that erases stalls the CPU,
+    /// control tick and watchdog feed included, this long.
+    #[cfg(not(feature = "qemu"))]
+    const ERASE_MAX_MS: u32 = 4_000;
+    /// Independent-watchdog timeout, nominal (the HAL assumes a 32 kHz LSI).
+    /// The LSI of the STM32F405 runs anywhere from 17 to 47 kHz (datasheet),
+    /// so the real timeout is 0.68 to 1.88 times this: 6.5 s nominal is at
+    /// least 4.4 s, longer than the worst-case erase (a shorter one would
+    /// reset the MCU in the middle of a save), and at most 12.2 s.
+    #[cfg(not(feature = "qemu"))]
+    const WATCHDOG_MS: u32 = 6_500;
+    #[cfg(not(feature = "qemu"))]
+    const _: () = assert!(
+        WATCHDOG_MS as u64 * 32 / 47 > ERASE_MAX_MS as u64 + 2 * TICK_US as u64 / 1_000,
+        "the watchdog must outlast a sector erase at the fastest LSI"
+    );
 
     #[shared]
     struct Shared {
@@ -133,9 +159,11 @@ mod app {
         rs485: Rs485,
         /// Modbus RTU framing and function codes (same two tasks).
         modbus: RtuServer,
-        /// I2C1 as the PoStep60 I2C slave (both I2C tasks, one priority).
-        #[cfg(not(feature = "qemu"))]
-        #[lock_free]
+        /// I2C1 as the PoStep60 I2C slave (both I2C tasks, and the Modbus
+        /// server task for address changes; all at one priority, so the
+        /// locks cost nothing, but an async task may not share a
+        /// `#[lock_free]` resource). A stand-in under QEMU: RTIC 2.4 cannot
+        /// `cfg` out a resource that is locked.
         i2c: I2cSlaveDriver,
         /// PoStep60 I2C transaction framing (both I2C tasks, one priority).
         #[cfg(not(feature = "qemu"))]
@@ -155,6 +183,15 @@ mod app {
         /// `control_loop` as its spawn argument instead.
         #[cfg(not(feature = "qemu"))]
         led: board::StatusLed,
+        /// Chain STBY/RESET, released (high) by `init`: driven low and given
+        /// up (`None`) once the bridge declares the chain dead. Under QEMU
+        /// (nothing attached) a spawn argument of `control_loop`, like the
+        /// LED.
+        #[cfg(not(feature = "qemu"))]
+        stby: Option<board::ChainStby>,
+        /// The independent watchdog, fed by every control tick.
+        #[cfg(not(feature = "qemu"))]
+        watchdog: IndependentWatchdog,
         /// ADC1: motor supply, die temperature, VREFINT.
         analog: Analog,
         /// Settings store: flash sectors 10 and 11 (RAM under QEMU).
@@ -183,6 +220,17 @@ mod app {
         // `start` asserts a whole number of cycles per tick: 168 MHz is.
         let systick_hz = systick_hz.unwrap_or(sysclk);
         Mono::start(cx.core.SYST, systick_hz - systick_hz % clock::TICK_HZ);
+
+        // From here on a stalled control tick resets the MCU (QEMU does not
+        // model the IWDG). Frozen while a debugger halts the core.
+        #[cfg(not(feature = "qemu"))]
+        let watchdog = {
+            let mut watchdog = IndependentWatchdog::new(dp.IWDG);
+            watchdog.stop_on_debug(&dp.DBGMCU, true);
+            watchdog.start(WATCHDOG_MS.millis());
+            info!("watchdog: {=u32} ms nominal", WATCHDOG_MS);
+            watchdog
+        };
 
         let pins = board::configure(
             dp.GPIOA.split(&mut rcc),
@@ -224,6 +272,8 @@ mod app {
             Some(e) => error!("chain: detection failed ({}), running with 0 axes", e),
         }
 
+        #[cfg(feature = "qemu")]
+        let i2c = crate::qemu::NoI2c;
         #[cfg(not(feature = "qemu"))]
         let i2c = {
             let (primary, secondary) = bridge.i2c_addresses();
@@ -272,7 +322,7 @@ mod app {
             timer
         };
         #[cfg(feature = "qemu")]
-        if control_loop::spawn(pins.led).is_err() {
+        if control_loop::spawn(pins.led, stby).is_err() {
             error!("control loop: spawn failed");
         }
         if modbus_server::spawn().is_err() {
@@ -285,7 +335,6 @@ mod app {
                 bridge,
                 rs485,
                 modbus: RtuServer::new(timing),
-                #[cfg(not(feature = "qemu"))]
                 i2c,
                 #[cfg(not(feature = "qemu"))]
                 i2c_proto: I2cSlave::new(),
@@ -297,6 +346,10 @@ mod app {
                 now_ms: 0,
                 #[cfg(not(feature = "qemu"))]
                 led: pins.led,
+                #[cfg(not(feature = "qemu"))]
+                stby: Some(stby),
+                #[cfg(not(feature = "qemu"))]
+                watchdog,
                 analog,
                 store,
                 bytes_in,
@@ -314,11 +367,17 @@ mod app {
 
     /// The control loop: one bridge tick (one chain batch for every axis).
     #[cfg(not(feature = "qemu"))]
-    #[task(binds = TIM2, priority = 3, shared = [bridge], local = [tick_timer, now_ms, led])]
+    #[task(binds = TIM2, priority = 3, shared = [bridge], local = [tick_timer, now_ms, led, stby, watchdog])]
     fn control_tick(mut cx: control_tick::Context) {
         cx.local.tick_timer.clear_flags(Flag::Update);
+        cx.local.watchdog.feed();
         *cx.local.now_ms += 1;
-        control_step(&mut cx.shared.bridge, *cx.local.now_ms, cx.local.led);
+        control_step(
+            &mut cx.shared.bridge,
+            *cx.local.now_ms,
+            cx.local.led,
+            cx.local.stby,
+        );
     }
 
     /// The control loop under QEMU, whose TIM2 is unusable: the same step
@@ -326,31 +385,48 @@ mod app {
     /// clock keeps pace with real time).
     #[cfg(feature = "qemu")]
     #[task(priority = 3, shared = [bridge])]
-    async fn control_loop(mut cx: control_loop::Context, mut led: board::StatusLed) {
+    async fn control_loop(
+        mut cx: control_loop::Context,
+        mut led: board::StatusLed,
+        stby: board::ChainStby,
+    ) {
         let period = <Mono as Timebase>::Duration::from_ticks(u64::from(clock::TICK_HZ / TICK_HZ));
         let mut next = Mono::now();
         let mut now_ms = 0;
+        let mut stby = Some(stby);
         loop {
             next += period;
             Mono::delay_until(next).await;
             now_ms += 1;
-            control_step(&mut cx.shared.bridge, now_ms, &mut led);
+            control_step(&mut cx.shared.bridge, now_ms, &mut led, &mut stby);
         }
     }
 
-    /// One control tick at `now` ms: bridge tick, LED, slow jobs at 10 Hz.
+    /// One control tick at `now` ms: bridge tick, STBY, LED, slow jobs at
+    /// 10 Hz.
     fn control_step(
         bridge: &mut impl Mutex<T = Bridge<ChainBus>>,
         now: u64,
         led: &mut board::StatusLed,
+        stby: &mut Option<board::ChainStby>,
     ) {
-        let on = bridge.lock(|b| {
+        let (on, dead) = bridge.lock(|b| {
             b.tick(now);
             // The simulated chips live through exactly one tick period.
             #[cfg(feature = "qemu")]
             b.chain_mut().bus_mut().advance(u64::from(TICK_US) * 1_000);
-            b.led_on(now)
+            (b.led_on(now), b.chain_dead())
         });
+        // The bridge can no longer stop the motors over SPI: hold every chip
+        // in reset, bridges off. The pin is given up with it (a dropped HAL
+        // pin keeps its mode and level), so nothing can drive STBY high
+        // again until the MCU resets.
+        if dead {
+            if let Some(mut pin) = stby.take() {
+                pin.set_low();
+                error!("chain: dead, STBY low: every chip held in reset until the MCU resets");
+            }
+        }
         led.set_state(on.into());
         if now % HOUSEKEEPING_TICKS == 0 {
             // Still busy with the previous round: skip this one.
@@ -364,8 +440,12 @@ mod app {
     fn modbus_uart(cx: modbus_uart::Context) {
         let mut received = false;
         (cx.shared.rs485, cx.shared.modbus).lock(|rs485, server| {
-            rs485.on_interrupt(|byte| {
-                server.on_byte(byte, clock::now_us());
+            rs485.on_interrupt(|rx| {
+                let now = clock::now_us();
+                match rx {
+                    Rx::Byte(byte) => server.on_byte(byte, now),
+                    Rx::Bad => server.on_bad_byte(now),
+                }
                 received = true;
             });
         });
@@ -376,8 +456,11 @@ mod app {
 
     /// Modbus frame ends: wait for the server's deadline (t3.5 after the
     /// last byte), execute the request with the bridge locked, start the
-    /// response at once.
-    #[task(priority = 2, shared = [bridge, rs485, modbus], local = [bytes_seen, errors_seen: u32 = 0])]
+    /// response at once. A request that changed the address base moves the
+    /// I2C slave's own addresses too (the I2C tasks only look after their
+    /// own requests). Same priority as the I2C tasks: it never preempts
+    /// them, so the addresses never change in the middle of their handling.
+    #[task(priority = 2, shared = [bridge, rs485, modbus, i2c], local = [bytes_seen, errors_seen: u32 = 0])]
     async fn modbus_server(mut cx: modbus_server::Context) {
         loop {
             let Some(deadline) = cx.shared.modbus.lock(|s| s.deadline()) else {
@@ -398,6 +481,7 @@ mod app {
                 }
                 rs485.errors()
             });
+            cx.shared.i2c.lock(|i2c| apply_address_change(bridge, i2c));
             if errors.total() != *cx.local.errors_seen {
                 *cx.local.errors_seen = errors.total();
                 warn!("modbus: line errors {}", errors);
@@ -409,28 +493,32 @@ mod app {
     #[cfg(not(feature = "qemu"))]
     #[task(binds = I2C1_EV, priority = 2, shared = [bridge, i2c, i2c_proto])]
     fn i2c_event(mut cx: i2c_event::Context) {
-        let i2c = cx.shared.i2c;
-        i2c.on_event(
-            cx.shared.i2c_proto,
-            &mut LockedTarget(&mut cx.shared.bridge),
-        );
-        if let Some((p, s)) = cx
-            .shared
-            .bridge
-            .lock(|b| b.take_address_change().then(|| b.i2c_addresses()))
-        {
-            i2c.set_addresses(p, s);
-        }
+        let (bridge, proto) = (&mut cx.shared.bridge, cx.shared.i2c_proto);
+        cx.shared.i2c.lock(|i2c| {
+            i2c.on_event(proto, &mut LockedTarget(&mut *bridge));
+            apply_address_change(bridge, i2c);
+        });
     }
 
     /// I2C1 errors: the master's NACK ending a read, bus errors.
     #[cfg(not(feature = "qemu"))]
     #[task(binds = I2C1_ER, priority = 2, shared = [bridge, i2c, i2c_proto])]
     fn i2c_error(mut cx: i2c_error::Context) {
-        cx.shared.i2c.on_error(
-            cx.shared.i2c_proto,
-            &mut LockedTarget(&mut cx.shared.bridge),
-        );
+        let (bridge, proto) = (&mut cx.shared.bridge, cx.shared.i2c_proto);
+        cx.shared
+            .i2c
+            .lock(|i2c| i2c.on_error(proto, &mut LockedTarget(bridge)));
+    }
+
+    /// Reprogram the I2C own addresses if the bridge's address base changed
+    /// since the last call (through either bus).
+    fn apply_address_change(
+        bridge: &mut impl Mutex<T = Bridge<ChainBus>>,
+        i2c: &mut I2cSlaveDriver,
+    ) {
+        if let Some((p, s)) = bridge.lock(|b| b.take_address_change().then(|| b.i2c_addresses())) {
+            i2c.set_addresses(p, s);
+        }
     }
 
     /// Slow jobs at the lowest priority: ADC samples (~71 µs of blocking

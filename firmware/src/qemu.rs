@@ -10,12 +10,13 @@
 //! | powerSTEP01 chain on SPI1 | [`SimChain`] of [`AXES`] simulated chips, advanced one tick period per control tick | no chips attached |
 //! | ADC1 samples | [`FixedAnalog`]: 24 V supply, 25 °C | ADC init reads calibration next to the unique ID, which HardFaults |
 //! | settings store in flash sectors 10/11 | [`RamFlash`] (erased at every boot) | the flash controller is not modelled |
-//! | I2C1 slave | not started, its tasks not built | I2C transfers hang |
+//! | I2C1 slave | not started, its tasks not built; [`NoI2c`] takes the address changes | I2C transfers hang |
 //! | defmt over RTT | defmt over semihosting (stdout; `defmt-print -e ELF`) | no probe |
 //! | a fault halts the core | [`HardFault`] exits QEMU with status 1 | so a crashed image ends the run |
 //!
-//! A panic prints its message through defmt (panic-probe), then `udf`
-//! raises a HardFault, which ends QEMU with status 1.
+//! A panic (the handler in `failsafe.rs`, the board's) drives STBY low,
+//! prints its message through defmt, then `udf` raises a HardFault, which
+//! ends QEMU with status 1.
 
 // The HardFault handler is an `unsafe fn` by cortex-m-rt's contract.
 #![allow(unsafe_code)]
@@ -70,8 +71,18 @@ impl FixedAnalog {
     }
 }
 
-/// Any HardFault (including panic-probe's `udf` after a panic message) ends
-/// QEMU with exit status 1, so a crash fails a test run instead of hanging.
+/// I2C1 slave stand-in: the shared resource the Modbus server hands
+/// address changes to (`crate::i2c_slave::I2cSlaveDriver` on the board).
+pub struct NoI2c;
+
+impl NoI2c {
+    /// Nothing to reprogram under QEMU.
+    pub fn set_addresses(&mut self, _primary: u8, _secondary: Option<u8>) {}
+}
+
+/// Any HardFault (including the panic handler's `udf` after its message)
+/// ends QEMU with exit status 1, so a crash fails a test run instead of
+/// hanging.
 #[cortex_m_rt::exception]
 unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
     // Through semihosting's stderr, not defmt: the fault may have hit inside

@@ -12,13 +12,13 @@
 //!   so 8 data bits + parity need M = 1. The baud divider comes from the
 //!   real APB1 clock.
 //! * **Receiving**: every byte is handed over from the interrupt
-//!   ([`Rs485::on_interrupt`]) the moment RXNE is seen; the caller stamps it.
-//!   A byte with a parity, framing or noise error, and an overrun, is **not
-//!   handed over**: the data register is read (which clears the flags) and
-//!   the error is counted in [`RxErrors`]. The frame it belonged to then
-//!   lacks a byte and fails its CRC in the server, so it is dropped, never
-//!   executed (the server's API has no "bad byte" entry; a frame with one
-//!   byte missing passes CRC-16 with probability 2^-16 at most).
+//!   ([`Rs485::on_interrupt`]) as [`Rx::Byte`] the moment RXNE is seen; the
+//!   caller stamps it. A byte with a parity, framing or noise error, and an
+//!   overrun (characters lost), is handed over as [`Rx::Bad`] instead, for
+//!   the server's `on_bad_byte`, which discards the frame it belongs to
+//!   (Modbus serial line spec §2.5.1.2) even if the rest passes the CRC. The
+//!   data register is read either way (which clears the flags), and the
+//!   error is counted in [`RxErrors`] as well.
 //! * **Transmitting** ([`Rs485::send`]) is interrupt-driven: DE goes high
 //!   before the first byte is written; `send` itself loads the data register
 //!   while TXE is set (on the chip: the first byte, which moves on to the
@@ -31,7 +31,8 @@
 //!   checked right after enabling its interrupt as well, so a TC that is
 //!   already set is never missed.
 //! * While DE is high nothing is handed over: a byte received then is our own
-//!   echo or a collision, read and counted in [`RxErrors::while_sending`].
+//!   echo or a collision, read and counted in [`RxErrors::while_sending`]
+//!   (or, with a character error, in that error's counter).
 //! * Never blocks, never waits on a flag, never panics. Every call does a
 //!   bounded amount of work; a flag it does not serve stays pending and is
 //!   served by the next interrupt.
@@ -60,6 +61,15 @@ use stm32f4xx_hal::time::Bps;
 use stm32f4xx_hal::{Listen, ReadFlags};
 
 use crate::board::{ModbusDe, ModbusRx, ModbusTx, ModbusUsart};
+
+/// What [`Rs485::on_interrupt`] hands over.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Rx {
+    /// A byte received without error.
+    Byte(u8),
+    /// A character with a parity, framing or noise error, or an overrun.
+    Bad,
+}
 
 /// Receive errors and dropped bytes (all saturate).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, defmt::Format)]
@@ -166,9 +176,9 @@ impl Rs485 {
         self.errors
     }
 
-    /// The USART2 interrupt: hands a received byte to `on_byte`, moves the
-    /// transmission on (TXE, TC). See the module docs.
-    pub fn on_interrupt(&mut self, mut on_byte: impl FnMut(u8)) {
+    /// The USART2 interrupt: hands a received byte or character error to
+    /// `on_rx`, moves the transmission on (TXE, TC). See the module docs.
+    pub fn on_interrupt(&mut self, mut on_rx: impl FnMut(Rx)) {
         let Some(serial) = self.serial.as_mut() else {
             return;
         };
@@ -177,15 +187,21 @@ impl Rs485 {
         // checks PE/FE/NE/ORE first and reads DR in every case but "nothing
         // there", which clears RXNE and the error flags.
         if flags.intersects(Flag::RxNotEmpty | Flag::Overrun) {
+            let receiving = self.state == State::Receiving;
             match serial.read() {
-                Ok(byte) if self.state == State::Receiving => on_byte(byte),
+                Ok(byte) if receiving => on_rx(Rx::Byte(byte)),
                 Ok(_) => bump(&mut self.errors.while_sending),
-                Err(nb::Error::Other(e)) => match e {
-                    serial::Error::Parity => bump(&mut self.errors.parity),
-                    serial::Error::FrameFormat => bump(&mut self.errors.framing),
-                    serial::Error::Noise => bump(&mut self.errors.noise),
-                    _ => bump(&mut self.errors.overrun),
-                },
+                Err(nb::Error::Other(e)) => {
+                    bump(match e {
+                        serial::Error::Parity => &mut self.errors.parity,
+                        serial::Error::FrameFormat => &mut self.errors.framing,
+                        serial::Error::Noise => &mut self.errors.noise,
+                        _ => &mut self.errors.overrun,
+                    });
+                    if receiving {
+                        on_rx(Rx::Bad);
+                    }
+                }
                 Err(nb::Error::WouldBlock) => {}
             }
         }
