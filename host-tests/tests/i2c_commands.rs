@@ -533,11 +533,15 @@ fn stop_0x5f_stops_at_once_without_a_ramp() {
     let stopped = b.chip(0).abs_pos();
     b.settle(1000);
     let held = b.chip(0).abs_pos();
-    // Stopped within the next ticks (1000 steps/s · 3 ms = 3 steps = 24 µsteps)
-    // and landed on the logical step at or below.
-    assert!((held - stopped).abs() <= 8, "{stopped} → {held}");
-    assert_eq!(held % 8, 0);
+    // Stopped within the tick that carried the HardStop (1000 steps/s · 1 ms
+    // = 1 step = 8 µsteps), and held there: no landing move afterwards.
+    assert_eq!(held, stopped, "no move after the stop");
     assert_eq!(b.chip(0).speed_reg(), 0);
+    // The position reads as the logical step at or below the chip.
+    assert_eq!(
+        i64::from(le_i32(&b.query(A0, 0x40, 4))),
+        i64::from(held).div_euclid(8)
+    );
 }
 
 #[test]

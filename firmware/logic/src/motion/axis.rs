@@ -517,6 +517,15 @@ impl Axis {
 
     // ------------------------------------------------------------ per tick
 
+    /// The chip's position in the profile's units (2⁻³³ logical steps), exact.
+    fn chip_fine(&self) -> i128 {
+        let s = i128::from(self.cfg.step.shift());
+        let l = i128::from(self.cfg.logical_shift);
+        // logical = physical · 2^(L−S)
+        let shift = 33 + l - s;
+        i128::from(self.chip_pos) << shift
+    }
+
     /// Physical microstep nearest to the profile's exact position: where the
     /// chip should be now.
     pub fn profile_physical(&self) -> i64 {
@@ -616,8 +625,9 @@ impl Axis {
                     // Hold exactly where the profile is (or make it zero).
                     match self.after_stop {
                         AfterStop::Hold => {
-                            let here = self.actual_position();
-                            self.profile.set_position(here);
+                            // Exactly where the chip is, even between two
+                            // logical steps: the next move starts from there.
+                            self.profile.set_position_fine(self.chip_fine());
                             self.state = AxisState::Idle;
                         }
                         AfterStop::Zero => {

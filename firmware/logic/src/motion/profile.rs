@@ -213,6 +213,14 @@ impl Profile {
         self.mode = Mode::Hold;
     }
 
+    /// Define the current position exactly, in 2⁻³³ steps (at rest, like
+    /// [`Profile::set_position`]): for an axis held between two whole steps.
+    pub fn set_position_fine(&mut self, fine: i128) {
+        self.vel = 0;
+        self.pos = fine;
+        self.mode = Mode::Hold;
+    }
+
     /// Position, rounded to the nearest step (halves away from zero).
     pub fn position_round(&self) -> i64 {
         let half = ONE_STEP / 2;
