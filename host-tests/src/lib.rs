@@ -4,4 +4,5 @@
 pub mod i2c_master;
 pub mod modbus_master;
 pub mod rig;
+pub mod sim_bridge;
 pub mod svg;

@@ -246,26 +246,15 @@ impl Line {
 
     /// Run until every axis is settled (panics after `cap` ms).
     pub fn settle(&mut self, cap: u64) {
-        for _ in 0..cap {
-            if (0..self.bridge.axes()).all(|k| self.bridge.axis(k).is_some_and(|a| a.is_settled()))
-            {
-                return;
-            }
-            self.run(1);
-        }
-        panic!("not settled after {cap} ms");
+        crate::sim_bridge::settle(self, cap, |h| &h.bridge, |h| h.run(1));
     }
 
     pub fn chip(&self, k: usize) -> &bridge_logic::sim::Powerstep01 {
-        self.bridge.chain().bus().device(k).expect("chip")
+        crate::sim_bridge::chip(&self.bridge, k)
     }
 
     pub fn chip_mut(&mut self, k: usize) -> &mut bridge_logic::sim::Powerstep01 {
-        self.bridge
-            .chain_mut()
-            .bus_mut()
-            .device_mut(k)
-            .expect("chip")
+        crate::sim_bridge::chip_mut(&mut self.bridge, k)
     }
 }
 

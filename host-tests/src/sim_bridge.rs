@@ -1,0 +1,34 @@
+//! What every bus-master harness needs from a bridge on simulated chips.
+
+use bridge_logic::bridge::Bridge;
+use bridge_logic::sim::{Powerstep01, SimChain};
+
+/// Every axis settled (profile done, chip landed and confirmed).
+pub fn all_settled(bridge: &Bridge<SimChain>) -> bool {
+    (0..bridge.axes()).all(|k| bridge.axis(k).is_some_and(|a| a.is_settled()))
+}
+
+/// Simulated chip `k` (panics if there is none: a test bug).
+pub fn chip(bridge: &Bridge<SimChain>, k: usize) -> &Powerstep01 {
+    bridge.chain().bus().device(k).expect("chip")
+}
+
+pub fn chip_mut(bridge: &mut Bridge<SimChain>, k: usize) -> &mut Powerstep01 {
+    bridge.chain_mut().bus_mut().device_mut(k).expect("chip")
+}
+
+/// Tick `run_ms(1)` until every axis is settled; panics after `cap` ms.
+pub fn settle<H>(
+    h: &mut H,
+    cap: u64,
+    bridge: impl Fn(&H) -> &Bridge<SimChain>,
+    mut run_ms: impl FnMut(&mut H),
+) {
+    for _ in 0..cap {
+        if all_settled(bridge(h)) {
+            return;
+        }
+        run_ms(h);
+    }
+    panic!("not settled after {cap} ms");
+}
