@@ -2,13 +2,12 @@
 //! `I2cSlave` state machine the firmware's interrupt handlers drive, plus a
 //! virtual clock that ticks the bridge and the simulated chips together.
 
-use bridge_logic::bridge::{Bridge, SettingsSource};
-use bridge_logic::postep::analog::AnalogSample;
+use bridge_logic::bridge::Bridge;
 use bridge_logic::postep::{Board, Settings};
 use bridge_logic::sim::SimChain;
 use bridge_logic::transport::i2c::{I2cSlave, Which};
 
-pub const TICK_US: u32 = 1000;
+pub use crate::sim_bridge::TICK_US;
 
 /// Bridge + simulated chain + I2C bus + virtual clock.
 pub struct Bench {
@@ -24,24 +23,11 @@ impl Bench {
     }
 
     pub fn with_board(n: usize, settings: Settings, board: Board) -> Bench {
-        let bridge = Bridge::new(
-            SimChain::new(n),
-            board,
-            settings,
-            SettingsSource::Stored,
-            TICK_US,
-        );
         let mut b = Bench {
-            bridge,
+            bridge: crate::sim_bridge::new_bridge(n, settings, board),
             slave: I2cSlave::new(),
             now_ms: 0,
         };
-        // 24 V supply, 25 °C.
-        b.bridge.on_analog(AnalogSample {
-            supply: 1490,
-            temperature: 943,
-            vrefint: 1502,
-        });
         b.run(20);
         b
     }

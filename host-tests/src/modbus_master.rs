@@ -7,14 +7,13 @@
 //! The CRC here is a bitwise CRC-16/MODBUS written from the spec, not the
 //! `crc` crate the server uses, so the two check each other.
 
-use bridge_logic::bridge::{Bridge, SettingsSource};
-use bridge_logic::postep::analog::AnalogSample;
+use bridge_logic::bridge::Bridge;
 use bridge_logic::postep::settings::Serial;
 use bridge_logic::postep::{Board, Settings};
 use bridge_logic::sim::SimChain;
 use bridge_logic::transport::modbus::{RtuServer, Timing};
 
-pub const TICK_US: u32 = 1000;
+pub use crate::sim_bridge::TICK_US;
 
 /// CRC-16/MODBUS (poly 0xA001 reflected, init 0xFFFF), bit by bit.
 pub fn crc16(bytes: &[u8]) -> u16 {
@@ -74,13 +73,7 @@ impl Line {
     }
 
     pub fn with_board(n: usize, settings: Settings, board: Board) -> Line {
-        let bridge = Bridge::new(
-            SimChain::new(n),
-            board,
-            settings,
-            SettingsSource::Stored,
-            TICK_US,
-        );
+        let bridge = crate::sim_bridge::new_bridge(n, settings, board);
         let timing = Timing::for_serial(bridge.serial());
         let mut line = Line {
             char_us: character_us(bridge.serial()),
@@ -91,12 +84,6 @@ impl Line {
             ticks: 0,
             sent: Vec::new(),
         };
-        // 24 V supply, 25 °C.
-        line.bridge.on_analog(AnalogSample {
-            supply: 1490,
-            temperature: 943,
-            vrefint: 1502,
-        });
         line.run(20);
         line
     }

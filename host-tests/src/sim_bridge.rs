@@ -1,7 +1,30 @@
 //! What every bus-master harness needs from a bridge on simulated chips.
 
-use bridge_logic::bridge::Bridge;
+use bridge_logic::bridge::{Bridge, SettingsSource};
+use bridge_logic::postep::analog::AnalogSample;
+use bridge_logic::postep::{Board, Settings};
 use bridge_logic::sim::{Powerstep01, SimChain};
+
+/// The harnesses' control period.
+pub const TICK_US: u32 = 1000;
+
+/// A bridge on `n` simulated chips with `settings`, measuring 24 V and 25 °C
+/// (not yet ticked: the caller runs it until the chips are configured).
+pub fn new_bridge(n: usize, settings: Settings, board: Board) -> Bridge<SimChain> {
+    let mut bridge = Bridge::new(
+        SimChain::new(n),
+        board,
+        settings,
+        SettingsSource::Stored,
+        TICK_US,
+    );
+    bridge.on_analog(AnalogSample {
+        supply: 1490,
+        temperature: 943,
+        vrefint: 1502,
+    });
+    bridge
+}
 
 /// Every axis settled (profile done, chip landed and confirmed).
 pub fn all_settled(bridge: &Bridge<SimChain>) -> bool {
