@@ -7,6 +7,7 @@ use bridge_logic::postep::analog::AnalogSample;
 use bridge_logic::postep::settings::{DriverMode, IMAGE_LEN};
 use bridge_logic::postep::{Board, Inputs, Settings};
 use bridge_logic::powerstep::registers::Register;
+use bridge_logic::powerstep::Direction;
 use bridge_logic::powerstep::StepSel;
 use bridge_logic::sim::Fault;
 use host_tests::i2c_master::{le_i32, le_u16, Bench};
@@ -506,7 +507,10 @@ fn requested_speed_0x54_and_invert_0x55_work_only_in_auto_run() {
     b.write(A0, &[0x55, 0x01]);
     b.run(1000);
     assert_eq!(b.query(A0, 0x46, 1), [1]);
-    assert_eq!(le_u16(&b.query(A0, 0x44, 2)) as i16, -200);
+    // Current speed is a magnitude (manual: BYTE1·256 + BYTE0); the chip
+    // runs in reverse now.
+    assert_eq!(le_u16(&b.query(A0, 0x44, 2)), 200);
+    assert_eq!(b.chip(0).status().direction(), Direction::Reverse);
 }
 
 #[test]

@@ -8,6 +8,7 @@ use bridge_logic::motion::axis::logical_to_physical;
 use bridge_logic::postep::settings::IMAGE_LEN;
 use bridge_logic::postep::{Board, Settings};
 use bridge_logic::powerstep::registers::Register;
+use bridge_logic::powerstep::Direction;
 use bridge_logic::powerstep::StepSel;
 use bridge_logic::sim::Fault;
 use host_tests::modbus_master::Line;
@@ -517,7 +518,9 @@ fn requested_speed_0x54_and_invert_0x55_run_the_motor_in_auto_run_only() {
     );
     b.run(1000);
     assert_eq!(b.read(1, 0x46, 1), Ok(vec![1]));
-    assert_eq!(b.read(1, 0x44, 1), Ok(vec![(-200i16) as u16]));
+    // A magnitude (manual: BYTE1·256 + BYTE0); the chip runs in reverse.
+    assert_eq!(b.read(1, 0x44, 1), Ok(vec![200]));
+    assert_eq!(b.chip(0).status().direction(), Direction::Reverse);
 }
 
 #[test]

@@ -53,6 +53,11 @@ pub struct Diagnostics {
     /// Requests a device refused (wrong mode, asleep, faulted, ignored values…).
     pub refused: u32,
     pub chain_errors: u32,
+    /// Chip resets / undervoltages detected, every axis together (each one
+    /// latched UVLO in its axis's faults and re-ran the chip's setup).
+    pub chip_resets: u32,
+    /// Speed/acceleration settings clamped to what the chip can follow.
+    pub limit_clamps: u32,
     pub saves: u32,
     pub save_errors: u32,
 }
@@ -183,9 +188,10 @@ impl<B: ChainBus> Bridge<B> {
                 step: board.step,
                 drive: board.drive,
             };
-            let device = Device::new(*s);
+            let mut device = Device::new(*s);
             let mut axis =
                 Axis::new(cfg, device.limits()).with_chip_config(board.config_register());
+            device.clamp_limits(&mut axis);
             axis.energize();
             let _ = group.push(axis);
             let _ = devices.push(device);
@@ -367,6 +373,10 @@ impl<B: ChainBus> Bridge<B> {
         } else {
             self.failed_ticks = 0;
         }
+        self.diag.chip_resets = self
+            .group
+            .iter()
+            .fold(0u32, |n, a| n.saturating_add(a.chip_resets()));
     }
 
     /// The chain has failed for [`CHAIN_DEAD_TICKS`] ticks in a row: the
@@ -386,7 +396,10 @@ impl<B: ChainBus> Bridge<B> {
         let (Some(d), Some(a)) = (self.devices.get_mut(k), self.group.axis_mut(k)) else {
             return Err(CommandError::Unsupported);
         };
+        let clamps = d.clamps;
         let result = d.apply(req, a, &self.board);
+        let clamped = d.clamps.wrapping_sub(clamps);
+        self.diag.limit_clamps = self.diag.limit_clamps.saturating_add(clamped);
         match result {
             Ok(Effect::SaveSettings) => self.save_pending = true,
             Ok(Effect::SystemReset) => {

@@ -34,9 +34,18 @@ fn limits_near(v: u32) -> impl Strategy<Value = Limits> {
     )
 }
 
+/// One tick, checked against the limits in force during it (taken before
+/// the tick: the deceleration may return to the limit's once at rest).
+fn tick_checked(p: &mut Profile, before: i64) -> Result<i64, TestCaseError> {
+    let limits = p.internal_limits();
+    let after = p.tick();
+    check_step(limits, before, after)?;
+    Ok(after)
+}
+
 /// Checks one tick's velocity change against the limits in force.
-fn check_step(p: &Profile, before: i64, after: i64) -> Result<(), TestCaseError> {
-    let (vmax, acc, dec) = p.internal_limits();
+fn check_step(limits: (i64, i64, i64), before: i64, after: i64) -> Result<(), TestCaseError> {
+    let (vmax, acc, dec) = limits;
     // Speed never above max, unless it is coming down from an older, higher max.
     prop_assert!(
         after.abs() <= vmax || after.abs() < before.abs(),
@@ -94,9 +103,7 @@ proptest! {
         let mut v = 0;
         for _ in 0..100_000 {
             if p.is_settled() { break; }
-            let w = p.tick();
-            check_step(&p, v, w)?;
-            v = w;
+            v = tick_checked(&mut p, v)?;
         }
         prop_assert!(p.is_settled());
     }
@@ -152,6 +159,33 @@ proptest! {
     }
 
     #[test]
+    fn lowering_the_deceleration_mid_move_never_passes_the_target(
+        lim in limits(), frac in 1u32..=3000, neg in any::<bool>(), at in 0u32..4000, div in 2u32..1000,
+    ) {
+        let d = i64::from(lim.max_speed) * i64::from(frac) / 1000;
+        let target = if neg { -d } else { d };
+        let mut p = Profile::new(TICK_US, lim);
+        p.move_to(target);
+        let mut v = 0;
+        for _ in 0..at {
+            if p.is_settled() { break; }
+            v = tick_checked(&mut p, v)?;
+        }
+        p.set_limits(Limits { dec: (lim.dec / div).max(1), ..lim });
+        let goal = i128::from(target) << 33;
+        for _ in 0..2_000_000 {
+            if p.is_settled() { break; }
+            v = tick_checked(&mut p, v)?;
+            if neg {
+                prop_assert!(p.position_fine() >= goal, "passed the target");
+            } else {
+                prop_assert!(p.position_fine() <= goal, "passed the target");
+            }
+        }
+        prop_assert_eq!(p.position_fine(), goal);
+    }
+
+    #[test]
     fn retargeting_sequences_keep_all_limits_and_finally_land(
         (first, events, last) in max_speed().prop_flat_map(|v| {
             let span = i64::from(v) * 3;
@@ -167,9 +201,7 @@ proptest! {
         let mut v = 0;
         for (after, kind, arg, lim) in events {
             for _ in 0..after {
-                let w = p.tick();
-                check_step(&p, v, w)?;
-                v = w;
+                v = tick_checked(&mut p, v)?;
             }
             match kind {
                 0 => p.move_to(arg),
@@ -182,9 +214,7 @@ proptest! {
         p.move_to(last);
         let mut n = 0;
         while !p.is_settled() {
-            let w = p.tick();
-            check_step(&p, v, w)?;
-            v = w;
+            v = tick_checked(&mut p, v)?;
             n += 1;
             prop_assert!(n < 2_000_000, "did not settle");
         }

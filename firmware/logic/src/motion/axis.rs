@@ -16,115 +16,63 @@
 //!   (rounded up), so it reaches each setpoint inside the tick and has room to
 //!   correct while the profile ramps at its limit; its MAX_SPEED is a backstop
 //!   25 % + 16 steps/s above the profile's max speed.
+//! * **The profile never asks for more than the chip can do.** The limits the
+//!   profile runs with are the requested ones clamped to what a powerSTEP01
+//!   can follow in the current step mode ([`units::limit_cap`]), and, while
+//!   the chip may be moving, to what the ACC/DEC it is programmed with can
+//!   follow ([`units::ramp_capability`]): ACC/DEC are writable only while the
+//!   chip is stopped, so higher ramps take effect at the next start from
+//!   rest, lower ones at once (never so low that the axis would pass a
+//!   target it can still stop on: see [`Profile`]).
 //! * **Exact landing.** When the profile has settled on its target the axis
 //!   sends SoftStop, waits for the chip to report not-busy, then sends
 //!   `GoTo(target)`: the chip covers the last few microsteps itself and cannot
 //!   overshoot. The axis is settled when STATUS says not busy and ABS_POS
 //!   equals the target.
+//! * **Every accepted command takes effect, in order.** A stop or Set zero
+//!   in progress never discards a target, speed or zero given after it: when
+//!   the chip has stopped, the profile is re-based (to the chip's position,
+//!   or to 0 for Set zero) and keeps what it was asked to do since. Set zero
+//!   is in effect at once for every read ([`Axis::actual_position`] is 0 from
+//!   the call on) and a target given after it is in the new coordinates.
 //! * **Wide positions.** ABS_POS is 22 bits; every read is unwrapped against
 //!   the previous one (moves between two reads are far below 2²¹ microsteps),
 //!   so the axis position is an `i64` and moves longer than 2²¹ work. The
 //!   landing GoTo uses the chip's 22-bit shortest path, which is right because
-//!   the residual at landing is a few microsteps.
+//!   the residual at landing is a few microsteps. A read that went out in the
+//!   same batch before a write of ABS_POS (ResetPos, re-basing) is discarded.
 //! * **Units.** The profile runs in logical steps (PoStep60 step mode
 //!   0 = full … 8 = 1/256); the chip in physical microsteps (STEP_SEL). The
-//!   conversion is an exact power-of-two scaling ([`logical_to_physical`]); a
-//!   logical mode finer than the physical one lands on the physical microstep
-//!   at or below the logical target.
+//!   conversions are exact power-of-two scalings ([`units`]); a logical mode
+//!   finer than the physical one lands on the physical microstep at or below
+//!   the logical target.
+//! * **The chip's configuration is the bridge's.** Every register the
+//!   bridge configures (STEP_MODE, CONFIG, the current registers, MAX_SPEED,
+//!   ACC, DEC, ABS_POS, and any other register given to
+//!   [`Axis::set_register`]) is written at setup, and the chip is configured
+//!   ([`Axis::is_configured`]) only once all of them have been written since
+//!   its last reset. A reset or undervoltage (UVLO flag, also one seen in the
+//!   middle of a setup) stops the profile where the chip actually was (never
+//!   a jump in the commanded position), counts it ([`Axis::chip_resets`]),
+//!   and runs the whole setup again with ABS_POS re-based to the axis
+//!   position.
 //! * **The chip saying no.** CMD_ERROR after a GoTo retries the landing. A
-//!   reset or undervoltage (UVLO flag) stops the profile where the chip
-//!   actually is (never a jump in the commanded position), rewrites the
-//!   chip's configuration and re-bases its ABS_POS to the axis position; a
 //!   bridge fault (overcurrent, thermal shutdown) stops the profile at the
-//!   read-back position and leaves the bridges as the chip put them.
+//!   read-back position and switches the bridges off.
 
 use super::profile::{Limits, Mode, Profile};
-use heapless::Deque;
+use super::units::{self, LIMIT_CAPS};
+pub use super::units::{logical_to_physical, physical_to_logical, MAX_LOGICAL_SHIFT};
 
 use crate::powerstep::chain::{Replies, MAX_COMMANDS};
-use crate::powerstep::commands::{Command, Direction};
+use crate::powerstep::commands::{Command, Direction, SPEED_MAX};
 use crate::powerstep::fields::{DriveMode, StepMode, StepSel};
-use crate::powerstep::registers::{sign_extend_22, wrap_22, Access, Register};
+use crate::powerstep::registers::{sign_extend_22, wrap_22, Register};
 use crate::powerstep::status::Status;
 use crate::powerstep::status::ThermalStatus;
-use crate::powerstep::units;
 
-/// Finest PoStep60 step mode (8 = 1/256).
-pub const MAX_LOGICAL_SHIFT: u8 = 8;
 /// The following error is corrected over this many ticks.
 pub const CORRECTION_TICKS: i64 = 8;
-/// The chip's ACC/DEC are the profile's times this ratio (3/2): with equal
-/// ramps the chip could never catch up a following error while the profile
-/// accelerates or brakes at its limit.
-const RAMP_HEADROOM_NUM: u64 = 3;
-const RAMP_HEADROOM_DEN: u64 = 2;
-
-/// Logical position → physical microsteps (floor when the logical step is finer).
-pub const fn logical_to_physical(pos: i64, logical_shift: u8, step: StepSel) -> i64 {
-    let s = step.shift() as i64;
-    let l = logical_shift as i64;
-    if s >= l {
-        pos << (s - l)
-    } else {
-        pos >> (l - s)
-    }
-}
-
-/// Physical microsteps → logical position (exact when the logical step is coarser
-/// or equal; otherwise the physical microstep's first logical step).
-pub const fn physical_to_logical(pos: i64, logical_shift: u8, step: StepSel) -> i64 {
-    let s = step.shift() as i64;
-    let l = logical_shift as i64;
-    if s >= l {
-        // Floor: a physical position between two logical steps reads as the lower one.
-        pos >> (s - l)
-    } else {
-        pos << (l - s)
-    }
-}
-
-/// Logical steps/s (or /s²) → full steps/s in Q16.16, rounded up.
-pub const fn full_steps_q16_from_logical(v: u32, logical_shift: u8) -> u32 {
-    let q = (v as u64) << 16;
-    let div = 1u64 << logical_shift;
-    let r = q.div_ceil(div);
-    if r > u32::MAX as u64 {
-        u32::MAX
-    } else {
-        r as u32
-    }
-}
-
-/// Profile velocity (2⁻³² logical steps per tick) → chip SPEED units (signed):
-/// `v · 10⁶ · 2²⁸ / (tick_us · 2³² · 2^L · 4·10⁶) = v / (tick_us · 2^(6+L))`.
-pub const fn speed_reg_from_internal(v: i64, tick_us: u32, logical_shift: u8) -> i64 {
-    let div = (tick_us as i64) << (6 + logical_shift as i64);
-    if div == 0 {
-        0
-    } else {
-        v / div
-    }
-}
-
-/// A following error of `e` physical microsteps corrected over `ticks` ticks,
-/// in chip SPEED units: `e / 2^S` full steps per `ticks · tick_us` µs.
-pub const fn correction_speed_reg(e: i64, tick_us: u32, step: StepSel, ticks: i64) -> i64 {
-    let div = (tick_us as i64) * ticks;
-    if div <= 0 {
-        return 0;
-    }
-    // full steps/s = e · 10⁶ / (2^S · div); reg = that · 2²⁸ / 4·10⁶.
-    // |e| beyond 2³⁰ microsteps is no following error but a lost position:
-    // clamp so the shift cannot overflow (the speed saturates anyway).
-    let e = if e > 1 << 30 {
-        1 << 30
-    } else if e < -(1 << 30) {
-        -(1 << 30)
-    } else {
-        e
-    };
-    (e << 26) / (div << step.shift())
-}
 
 /// Static description of one axis.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -161,13 +109,13 @@ impl AxisConfig {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum AxisState {
-    /// Writing the chip's configuration (index of the next setup step).
+    /// Writing the chip's configuration (the setup phase, see [`Axis::plan`]).
     Setup(u8),
     /// At rest, holding.
     Idle,
     /// Streaming Run setpoints.
     Streaming,
-    /// SoftStop sent at the end of a move; waiting for not-busy.
+    /// A stop command sent (end of a move, Stop, Set zero…); waiting for not-busy.
     Stopping,
     /// GoTo sent; waiting for not-busy on the target.
     Landing,
@@ -197,20 +145,112 @@ enum Read {
 /// What to do once the chip has stopped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum AfterStop {
-    /// Land on the profile's target with GoTo.
+    /// End of a move: land on the profile's target with GoTo.
     Land,
-    /// Make the current position zero (PoStep60 Set zero).
-    Zero,
-    /// Stay where the chip stopped (after sleep): no landing move.
+    /// Stop, Set zero, sleep, step-mode change: stay where the chip stopped
+    /// (and start whatever was asked for since from there).
     Hold,
 }
 
-/// One axis: profile generator + output stage for one chip of the chain.
-#[derive(Clone, Debug)]
-pub struct Axis {
-    cfg: AxisConfig,
-    profile: Profile,
-    state: AxisState,
+/// Setup phases (the `u8` of [`AxisState::Setup`]).
+mod phase {
+    /// HardHiZ: bridges off, motor stopped (WH and WS registers writable).
+    pub const HIZ: u8 = 0;
+    /// Every configuration register of the image.
+    pub const IMAGE: u8 = 1;
+    pub const MAX_SPEED: u8 = 2;
+    pub const ACC: u8 = 3;
+    pub const DEC: u8 = 4;
+    /// ABS_POS re-based to the axis position; then the axis is configured.
+    pub const ABS_POS: u8 = 5;
+}
+
+/// Registers the bridge configures on the chip (besides the motion
+/// registers MAX_SPEED, ACC, DEC, ABS_POS), with the values it wants there
+/// and which of them still have to be written.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ChipImage {
+    /// Wanted values, index = address − 1.
+    values: [u32; 27],
+    /// Bit `address`: the bridge configures this register.
+    owned: u32,
+    /// Bit `address`: not written since the last reset or change.
+    dirty: u32,
+}
+
+impl ChipImage {
+    const fn new() -> ChipImage {
+        ChipImage {
+            values: [0; 27],
+            owned: 0,
+            dirty: 0,
+        }
+    }
+
+    /// Want `value` in `reg` (masked to its width).
+    fn set(&mut self, reg: Register, value: u32) {
+        let value = value & reg.mask();
+        let bit = 1u32 << reg.address();
+        let slot = self.values.get_mut(usize::from(reg.address()) - 1);
+        if let Some(slot) = slot {
+            if self.owned & bit == 0 || *slot != value {
+                *slot = value;
+                self.owned |= bit;
+                self.dirty |= bit;
+            }
+        }
+    }
+
+    /// The wanted value of `reg`, if the bridge configures it.
+    pub fn get(&self, reg: Register) -> Option<u32> {
+        if self.owned & (1 << reg.address()) == 0 {
+            return None;
+        }
+        self.values.get(usize::from(reg.address()) - 1).copied()
+    }
+
+    /// The chip was reset: every owned register has to be written again.
+    fn on_reset(&mut self) {
+        self.dirty = self.owned;
+    }
+
+    /// Nothing left to write.
+    pub fn is_clean(&self) -> bool {
+        self.dirty == 0
+    }
+
+    /// The next register to write: STEP_MODE, then CONFIG, then by address,
+    /// among those `allowed` accepts.
+    fn next(&self, allowed: impl Fn(Register) -> bool) -> Option<(Register, u32)> {
+        let first = [Register::StepMode, Register::Config];
+        first
+            .into_iter()
+            .chain(Register::all())
+            .filter(|r| self.dirty & (1 << r.address()) != 0 && allowed(*r))
+            .find_map(|r| self.get(r).map(|v| (r, v)))
+    }
+
+    fn written(&mut self, reg: Register) {
+        self.dirty &= !(1 << reg.address());
+    }
+}
+
+/// Requested limits and the motion registers as programmed on the chip.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct LimitState {
+    /// As set by [`Axis::set_limits`] (logical units of the current step mode).
+    requested: Limits,
+    /// MAX_SPEED, ACC, DEC registers as written (0: not since the last reset).
+    max_speed: u32,
+    acc: u32,
+    dec: u32,
+    /// (profile max speed, its MAX_SPEED backstop register), cached.
+    backstop: (u32, u32),
+}
+
+/// What the chip reported, and when.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Readback {
     /// Unwrapped chip position, physical microsteps.
     chip_pos: i64,
     /// Last raw ABS_POS read; `None` until the first read after (re)basing.
@@ -224,24 +264,38 @@ pub struct Axis {
     /// What was read this tick (decoded in `absorb`).
     read: Option<Read>,
     status: Status,
-    /// One-shot command to send at the next plan.
-    pending: Option<Command>,
-    after_stop: AfterStop,
     /// Tick of the last one-shot command, the last STATUS and ABS_POS reads
     /// (u64: never wraps, so the ordering checks hold for any uptime).
     sent_at: u64,
     status_at: u64,
     pos_at: u64,
-    /// Chip MAX_SPEED, ACC, DEC as written (register values).
-    chip_limits: (u32, u32, u32),
-    /// (profile max speed, its MAX_SPEED backstop register), cached.
-    backstop: (u32, u32),
+    /// Tick at which the current setup began (a UVLO read after it is a new reset).
+    setup_at: u64,
+}
+
+/// The stop in progress.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct StopState {
+    /// One-shot stop command to send at the next plan.
+    pending: Option<Command>,
+    after: AfterStop,
+    /// Set zero accepted: the position where the chip stops becomes 0.
+    zero: bool,
+}
+
+/// One axis: profile generator + output stage for one chip of the chain.
+#[derive(Clone, Debug)]
+pub struct Axis {
+    cfg: AxisConfig,
+    profile: Profile,
+    state: AxisState,
+    limits: LimitState,
+    rb: Readback,
+    image: ChipImage,
+    stop: StopState,
     fault: Option<AxisFault>,
+    /// Control ticks planned so far.
     tick: u64,
-    /// CONFIG register value written at setup (None: leave the chip's).
-    chip_config: Option<u16>,
-    /// Register writes (WR registers only) waiting for a free command slot.
-    writes: Deque<(Register, u32), 8>,
     /// One-shot command to send while idle (wake up: HardStop).
     idle_command: Option<Command>,
     /// Bridges switched off on request: motion commands are not executed.
@@ -253,48 +307,59 @@ pub struct Axis {
     resets: u32,
 }
 
-/// Setup steps after which the chip is configured.
-const SETUP_STEPS: u8 = 4;
-
 impl Axis {
     pub fn new(cfg: AxisConfig, limits: Limits) -> Axis {
         let cfg = AxisConfig {
             logical_shift: cfg.logical_shift.min(MAX_LOGICAL_SHIFT),
             ..cfg
         };
-        Axis {
+        let mut image = ChipImage::new();
+        image.set(Register::StepMode, u32::from(cfg.step_mode().to_reg()));
+        let mut axis = Axis {
             cfg,
             profile: Profile::new(cfg.tick_us, limits),
-            state: AxisState::Setup(0),
-            chip_pos: 0,
-            raw: None,
-            pos_at_status: 0,
-            expected_at_read: 0,
-            error: 0,
-            read: None,
-            status: Status::IDLE,
-            pending: None,
-            after_stop: AfterStop::Land,
-            sent_at: 0,
-            status_at: 0,
-            pos_at: 0,
-            chip_limits: (0, 0, 0),
-            backstop: (0, 0),
+            state: AxisState::Setup(phase::HIZ),
+            limits: LimitState {
+                requested: limits,
+                max_speed: 0,
+                acc: 0,
+                dec: 0,
+                backstop: (0, 0),
+            },
+            rb: Readback {
+                chip_pos: 0,
+                raw: None,
+                pos_at_status: 0,
+                expected_at_read: 0,
+                error: 0,
+                read: None,
+                status: Status::IDLE,
+                sent_at: 0,
+                status_at: 0,
+                pos_at: 0,
+                setup_at: 1,
+            },
+            image,
+            stop: StopState {
+                pending: None,
+                after: AfterStop::Land,
+                zero: false,
+            },
             fault: None,
             tick: 0,
-            chip_config: None,
-            writes: Deque::new(),
             idle_command: None,
             asleep: false,
             chip_off_for_fault: false,
             resets: 0,
-        }
+        };
+        axis.refresh_limits();
+        axis
     }
 
     /// Write this CONFIG value at setup (e.g. SW_MODE = 1 so the switch input
     /// only raises an event and the bridge decides what it means).
     pub fn with_chip_config(mut self, config: u16) -> Axis {
-        self.chip_config = Some(config);
+        self.image.set(Register::Config, u32::from(config));
         self
     }
 
@@ -309,19 +374,23 @@ impl Axis {
     }
     /// Last STATUS read from the chip.
     pub fn status(&self) -> Status {
-        self.status
+        self.rb.status
     }
     /// Following error at the last position read, in physical microsteps.
     pub fn following_error(&self) -> i64 {
-        self.error
+        self.rb.error
     }
     /// The chip's unwrapped position in physical microsteps.
     pub fn chip_position(&self) -> i64 {
-        self.chip_pos
+        self.rb.chip_pos
     }
-    /// Actual position in logical steps (from the chip's read-back).
+    /// Actual position in logical steps (from the chip's read-back); 0 from
+    /// the moment Set zero is accepted.
     pub fn actual_position(&self) -> i64 {
-        physical_to_logical(self.chip_pos, self.cfg.logical_shift, self.cfg.step)
+        if self.stop.zero {
+            return 0;
+        }
+        physical_to_logical(self.rb.chip_pos, self.cfg.logical_shift, self.cfg.step)
     }
     /// Where the profile wants the axis (logical steps, nearest).
     pub fn required_position(&self) -> i64 {
@@ -341,6 +410,29 @@ impl Axis {
     /// Nothing moving: profile settled, chip landed and confirmed.
     pub fn is_settled(&self) -> bool {
         self.state == AxisState::Idle && self.profile.is_settled()
+    }
+    /// Every register the bridge configures has been written since the
+    /// chip's last reset.
+    pub fn is_configured(&self) -> bool {
+        !matches!(self.state, AxisState::Setup(_))
+    }
+    /// The registers the bridge configures on the chip and their values.
+    pub fn chip_image(&self) -> &ChipImage {
+        &self.image
+    }
+    /// Limits as requested (before any clamp).
+    pub fn requested_limits(&self) -> Limits {
+        self.limits.requested
+    }
+    /// The fastest limits the chip can follow in the current step mode.
+    pub fn limit_cap(&self) -> Limits {
+        Self::cap(self.cfg.logical_shift)
+    }
+    fn cap(shift: u8) -> Limits {
+        LIMIT_CAPS
+            .get(usize::from(shift))
+            .copied()
+            .unwrap_or(LIMIT_CAPS[0])
     }
 
     // ------------------------------------------------------ motion commands
@@ -362,18 +454,35 @@ impl Axis {
         self.profile.run_at(steps_per_s);
     }
 
-    /// Queue a write of a register that is writable at any time (KVAL/TVAL,
-    /// OCD_TH, …). A queued write to the same register is replaced. Returns
-    /// false for registers with access restrictions or when the queue is full.
-    pub fn write_register(&mut self, reg: Register, value: u32) -> bool {
-        if reg.access() != Access::Always {
+    /// Configure `reg` to hold `value` on the chip from now on, across chip
+    /// resets. Registers that are written at any time (KVAL/TVAL, OCD_TH, …)
+    /// go out in the next spare command slot; the others at the next setup.
+    /// Returns false for the registers the motion layer owns (ABS_POS,
+    /// STEP_MODE, MAX_SPEED, ACC, DEC) and the read-only ones.
+    pub fn set_register(&mut self, reg: Register, value: u32) -> bool {
+        use crate::powerstep::registers::Access;
+        let owned_by_motion = matches!(
+            reg,
+            Register::AbsPos
+                | Register::StepMode
+                | Register::MaxSpeed
+                | Register::Acc
+                | Register::Dec
+        );
+        if owned_by_motion || reg.access() == Access::ReadOnly {
             return false;
         }
-        if let Some(slot) = self.writes.iter_mut().find(|(r, _)| *r == reg) {
-            slot.1 = value;
-            return true;
-        }
-        self.writes.push_back((reg, value)).is_ok()
+        self.image.set(reg, value);
+        true
+    }
+
+    /// The phase currents as KVAL/TVAL register values: hold, and run (also
+    /// used while accelerating and decelerating).
+    pub fn set_currents(&mut self, hold: u32, run: u32) {
+        self.image.set(Register::KvalHold, hold);
+        self.image.set(Register::KvalRun, run);
+        self.image.set(Register::KvalAcc, run);
+        self.image.set(Register::KvalDec, run);
     }
 
     /// Switch the bridges off (PoStep60 sleep): stop at once, HardHiZ, hold
@@ -409,7 +518,8 @@ impl Axis {
     /// Change the logical step mode. A moving axis stops at once; the
     /// position is re-expressed in the new unit from the chip's microstep
     /// (exactly when the new unit is not finer than a microstep, else the
-    /// step at or below), and the chip's ramps are rewritten at the next start.
+    /// step at or below), the limits are re-clamped for the new unit and the
+    /// chip's ramps are rewritten at the next start.
     pub fn set_logical_shift(&mut self, shift: u8) {
         let shift = shift.min(MAX_LOGICAL_SHIFT);
         if shift == self.cfg.logical_shift {
@@ -417,17 +527,26 @@ impl Axis {
         }
         self.profile.stop_now();
         self.cfg.logical_shift = shift;
-        let here = self.actual_position();
-        self.profile.set_position(here);
-        self.chip_limits = (0, 0, 0);
-        self.backstop = (0, 0);
+        if self.stop.zero {
+            self.profile.set_position(0);
+        } else {
+            // Exactly where the chip is, in the new unit.
+            self.profile.set_position_fine(self.chip_fine());
+        }
+        self.limits.backstop = (0, 0);
         if !matches!(self.state, AxisState::Setup(_) | AxisState::Idle) {
             self.stop_then(AfterStop::Hold, self.stop_command());
         }
+        self.refresh_limits();
     }
-    /// Decelerate to a stop with the profile's deceleration.
+    /// Decelerate to a stop with the profile's deceleration. An axis at rest,
+    /// or already stopping at once, has nothing to do.
     pub fn soft_stop(&mut self) {
-        self.profile.soft_stop();
+        if self.state == AxisState::Stopping && self.stop.after == AfterStop::Hold {
+            self.profile.stop_now();
+        } else if !self.profile.is_settled() {
+            self.profile.soft_stop();
+        }
     }
     /// Stop at once, no ramp (HardStop), and hold where the chip stopped
     /// (no landing move: after an end switch that could go back into it).
@@ -436,10 +555,19 @@ impl Axis {
         self.profile.stop_now();
         self.stop_then(AfterStop::Hold, self.stop_command());
     }
-    /// Stop at once and make the current position zero.
+    /// Stop at once and make the position where the chip stops zero. In
+    /// effect at once: the position reads 0 and a target given from now on
+    /// is in the new coordinates.
     pub fn set_zero(&mut self) {
-        self.profile.stop_now();
-        self.stop_then(AfterStop::Zero, self.stop_command());
+        self.profile.set_position(0);
+        if matches!(self.state, AxisState::Setup(_)) {
+            // The setup writes ABS_POS = chip_pos at its end.
+            self.rb.chip_pos = 0;
+            self.rb.raw = None;
+            return;
+        }
+        self.stop.zero = true;
+        self.stop_then(AfterStop::Hold, self.stop_command());
     }
 
     /// HardStop holds the motor; asleep, the bridges must stay off.
@@ -457,62 +585,70 @@ impl Axis {
     /// position), then hold again unless asleep.
     pub fn on_chain_error(&mut self) {
         self.fault = Some(AxisFault::ChainError);
-        self.profile.stop_now();
-        let here = self.actual_position();
-        self.profile.set_position(here);
-        self.raw = None;
-        self.error = 0;
-        self.pending = None;
-        self.read = None;
-        self.chip_limits = (0, 0, 0);
-        self.state = AxisState::Setup(0);
+        self.restart_setup();
         if !self.asleep {
             self.idle_command = Some(Command::HardStop);
         }
     }
-    /// New limits: the profile uses them at the next tick; the chip's ACC/DEC
-    /// follow at the next start from rest (writable only while stopped), its
-    /// MAX_SPEED at once.
+
+    /// New limits (logical units). Clamped to what the chip can follow in the
+    /// current step mode; while the chip moves, higher ramps than it is
+    /// programmed with wait for the next start from rest.
     pub fn set_limits(&mut self, limits: Limits) {
-        self.profile.set_limits(limits);
+        self.limits.requested = limits;
+        self.refresh_limits();
+    }
+
+    /// The limits the profile may use now (module doc).
+    fn effective_limits(&self) -> Limits {
+        let shift = self.cfg.logical_shift;
+        let mut l = units::clamp_to_chip(self.limits.requested, shift);
+        let chip_may_move = !matches!(self.state, AxisState::Idle | AxisState::Setup(_));
+        if chip_may_move {
+            l.acc = l.acc.min(units::ramp_capability(self.limits.acc, shift));
+            l.dec = l.dec.min(units::ramp_capability(self.limits.dec, shift));
+        }
+        l
+    }
+
+    fn refresh_limits(&mut self) {
+        let l = self.effective_limits();
+        if l != self.profile.limits() {
+            self.profile.set_limits(l);
+        }
     }
 
     fn stop_then(&mut self, after: AfterStop, cmd: Command) {
         if matches!(self.state, AxisState::Setup(_)) {
-            if after == AfterStop::Zero {
-                self.chip_pos = 0;
-                self.profile.set_position(0);
-            }
+            // The chip is in HiZ and stopped; the setup's ABS_POS write
+            // re-bases it to the axis position.
             return;
         }
-        self.after_stop = after;
-        self.pending = Some(cmd);
+        self.stop.after = after;
+        self.stop.pending = Some(cmd);
         self.state = AxisState::Stopping;
     }
 
-    // ------------------------------------------------------------- limits
-
-    /// Chip MAX_SPEED register for a profile speed (logical steps/s): a
-    /// backstop 25 % + 16 steps/s above it.
-    fn backstop_reg(&self, steps_per_s: u32) -> u32 {
-        let v = full_steps_q16_from_logical(steps_per_s, self.cfg.logical_shift);
-        let backstop = v.saturating_add(v / 4).saturating_add(16 << 16);
-        units::max_speed_from_steps_per_s(backstop).max(1)
-    }
-
-    /// Chip (MAX_SPEED, ACC, DEC) registers for the profile's limits.
-    fn wanted_chip_limits(&self) -> (u32, u32, u32) {
-        let l = self.profile.limits();
-        let shift = self.cfg.logical_shift;
-        // The chip ramps RAMP_HEADROOM faster than the profile, so it reaches
-        // every setpoint inside the tick and has room left for corrections.
-        let ramp = |a: u32| {
-            let full = full_steps_q16_from_logical(a, shift);
-            let fast =
-                (u64::from(full) * RAMP_HEADROOM_NUM / RAMP_HEADROOM_DEN).min(u64::from(u32::MAX));
-            (units::acc_from_steps_per_s2(fast as u32) + 1).min(units::ACC_MAX_FINITE)
-        };
-        (self.backstop_reg(l.max_speed), ramp(l.acc), ramp(l.dec))
+    /// Stop the profile where the chip is and set the chip up again.
+    fn restart_setup(&mut self) {
+        if self.stop.zero {
+            // An accepted Set zero stays in effect.
+            self.rb.chip_pos = 0;
+            self.stop.zero = false;
+        }
+        self.profile.set_position_fine(self.chip_fine());
+        self.rb.raw = None;
+        self.rb.error = 0;
+        self.rb.read = None;
+        self.stop.pending = None;
+        self.limits.max_speed = 0;
+        self.limits.acc = 0;
+        self.limits.dec = 0;
+        self.limits.backstop = (0, 0);
+        self.image.on_reset();
+        self.state = AxisState::Setup(phase::HIZ);
+        self.rb.setup_at = self.tick + 1;
+        self.refresh_limits();
     }
 
     // ------------------------------------------------------------ per tick
@@ -523,19 +659,20 @@ impl Axis {
         let l = i128::from(self.cfg.logical_shift);
         // logical = physical · 2^(L−S)
         let shift = 33 + l - s;
-        i128::from(self.chip_pos) << shift
+        i128::from(self.rb.chip_pos) << shift
     }
 
-    /// Physical microstep nearest to the profile's exact position: where the
-    /// chip should be now.
+    /// Physical microstep at or below the profile's exact position (the same
+    /// rounding as [`logical_to_physical`], so an axis approaching a target
+    /// between two microsteps from below never passes the one it lands on):
+    /// where the chip should be now.
     pub fn profile_physical(&self) -> i64 {
         let fine = self.profile.position_fine();
         let s = i128::from(self.cfg.step.shift());
         let l = i128::from(self.cfg.logical_shift);
         // fine is in 2⁻³³ logical steps; physical = logical · 2^(S−L)
         let shift = 33 - s + l;
-        let half = 1i128 << (shift - 1);
-        ((fine + half) >> shift) as i64
+        (fine >> shift) as i64
     }
 
     fn target_physical(&self) -> i64 {
@@ -558,16 +695,20 @@ impl Axis {
             ok
         };
         self.plan_commands(&mut counted);
-        // Spare slots carry queued register writes (currents, thresholds).
-        while used < MAX_COMMANDS {
-            let Some((reg, value)) = self.writes.pop_front() else {
-                break;
-            };
-            if !emit(Command::SetParam(reg, value)) {
-                let _ = self.writes.push_front((reg, value));
-                break;
+        // Spare slots carry configuration registers writable at any time
+        // (currents, thresholds) that changed.
+        if self.is_configured() {
+            use crate::powerstep::registers::Access;
+            while used < MAX_COMMANDS {
+                let Some((reg, value)) = self.image.next(|r| r.access() == Access::Always) else {
+                    break;
+                };
+                if !emit(Command::SetParam(reg, value)) {
+                    break;
+                }
+                self.image.written(reg);
+                used += 1;
             }
-            used += 1;
         }
     }
 
@@ -582,75 +723,36 @@ impl Axis {
             Read::Position => Command::GetParam(Register::AbsPos),
             Read::Status => Command::GetStatus,
         };
-        self.read = if emit(read_cmd) { Some(read) } else { None };
-        self.expected_at_read = self.profile_physical();
+        self.rb.read = if emit(read_cmd) { Some(read) } else { None };
+        self.rb.expected_at_read = self.profile_physical();
 
         match self.state {
-            AxisState::Setup(k) => {
-                for cmd in self.setup_commands(k).into_iter().flatten() {
-                    emit(cmd);
-                }
-                self.state = if k + 1 >= SETUP_STEPS {
-                    AxisState::Idle
+            AxisState::Setup(k) => self.plan_setup(k, &mut emit),
+            AxisState::Idle if !self.profile.is_settled() => {
+                // A new motion from rest: make the chip's ramps match, then stream.
+                let l = units::clamp_to_chip(self.limits.requested, self.cfg.logical_shift);
+                let acc = units::ramp_reg(l.acc, self.cfg.logical_shift);
+                let dec = units::ramp_reg(l.dec, self.cfg.logical_shift);
+                if (acc, dec) != (self.limits.acc, self.limits.dec) {
+                    if emit(Command::SetParam(Register::Acc, acc)) {
+                        self.limits.acc = acc;
+                    }
+                    if emit(Command::SetParam(Register::Dec, dec)) {
+                        self.limits.dec = dec;
+                    }
                 } else {
-                    AxisState::Setup(k + 1)
-                };
+                    self.start_streaming(&mut emit);
+                }
             }
-            AxisState::Idle | AxisState::Landing if !self.profile.is_settled() => {
-                // A new motion: make the chip's ramps match, then stream.
-                let want = self.wanted_chip_limits();
-                let ramps_differ = (want.1, want.2) != (self.chip_limits.1, self.chip_limits.2);
-                if self.state == AxisState::Idle && ramps_differ {
-                    emit(Command::SetParam(Register::Acc, want.1));
-                    emit(Command::SetParam(Register::Dec, want.2));
-                    self.chip_limits.1 = want.1;
-                    self.chip_limits.2 = want.2;
-                } else {
-                    self.state = AxisState::Streaming;
-                    self.stream(&mut emit);
-                }
+            AxisState::Landing if !self.profile.is_settled() => {
+                // The chip is still busy: it keeps its ramps.
+                self.start_streaming(&mut emit);
             }
             AxisState::Streaming => self.stream(&mut emit),
-            AxisState::Stopping => {
-                if let Some(cmd) = self.pending.take() {
-                    emit(cmd);
-                    self.sent_at = self.tick;
-                } else if !self.profile.is_settled()
-                    && self.after_stop == AfterStop::Land
-                    && !self.asleep
-                {
-                    self.state = AxisState::Streaming;
-                    self.stream(&mut emit);
-                } else if self.confirmed_stopped() {
-                    // Hold exactly where the profile is (or make it zero).
-                    match self.after_stop {
-                        AfterStop::Hold => {
-                            // Exactly where the chip is, even between two
-                            // logical steps: the next move starts from there.
-                            self.profile.set_position_fine(self.chip_fine());
-                            self.state = AxisState::Idle;
-                        }
-                        AfterStop::Zero => {
-                            emit(Command::ResetPos);
-                            self.chip_pos = 0;
-                            self.raw = None;
-                            self.profile.set_position(0);
-                            self.state = AxisState::Idle;
-                        }
-                        AfterStop::Land => {
-                            if self.profile.mode() == Mode::Hold {
-                                // After a hard stop: hold on the step the chip reached.
-                                self.profile.set_position(self.actual_position());
-                                self.profile.move_to(self.actual_position());
-                            }
-                            self.land(&mut emit);
-                        }
-                    }
-                }
-            }
+            AxisState::Stopping => self.plan_stopping(&mut emit),
             AxisState::Landing => {
                 if self.confirmed_stopped() {
-                    if self.chip_pos == self.target_physical() {
+                    if self.rb.chip_pos == self.target_physical() {
                         self.state = AxisState::Idle;
                     } else {
                         // Refused (CMD_ERROR) or disturbed: land again.
@@ -659,8 +761,9 @@ impl Axis {
                 }
             }
             AxisState::Idle => {
-                // Energize only once the queued current writes are out.
-                if self.writes.is_empty() {
+                // Energize only once the changed currents are out.
+                use crate::powerstep::registers::Access;
+                if self.image.next(|r| r.access() == Access::Always).is_none() {
                     if let Some(cmd) = self.idle_command.take() {
                         emit(cmd);
                     }
@@ -669,19 +772,138 @@ impl Axis {
         }
     }
 
+    /// One tick of the setup: as many of its writes as the slots allow.
+    fn plan_setup(&mut self, mut k: u8, emit: &mut impl FnMut(Command) -> bool) {
+        loop {
+            let cmd = match k {
+                phase::HIZ => Command::HardHiZ,
+                phase::IMAGE => match self.image.next(|_| true) {
+                    Some((reg, value)) => Command::SetParam(reg, value),
+                    None => {
+                        k = phase::MAX_SPEED;
+                        continue;
+                    }
+                },
+                phase::MAX_SPEED => {
+                    let v = self.profile.limits().max_speed;
+                    Command::SetParam(
+                        Register::MaxSpeed,
+                        units::backstop_reg(v, self.cfg.logical_shift),
+                    )
+                }
+                phase::ACC => Command::SetParam(
+                    Register::Acc,
+                    units::ramp_reg(self.profile.limits().acc, self.cfg.logical_shift),
+                ),
+                phase::DEC => Command::SetParam(
+                    Register::Dec,
+                    units::ramp_reg(self.profile.limits().dec, self.cfg.logical_shift),
+                ),
+                _ => Command::SetParam(Register::AbsPos, wrap_22(self.rb.chip_pos as i32)),
+            };
+            if !emit(cmd) {
+                break;
+            }
+            match cmd {
+                Command::SetParam(Register::MaxSpeed, v) => self.limits.max_speed = v,
+                Command::SetParam(Register::Acc, v) => self.limits.acc = v,
+                Command::SetParam(Register::Dec, v) => self.limits.dec = v,
+                Command::SetParam(Register::AbsPos, _) => self.discard_position_read(),
+                Command::SetParam(reg, _) if k == phase::IMAGE => self.image.written(reg),
+                _ => {}
+            }
+            if k == phase::ABS_POS {
+                self.state = AxisState::Idle;
+                self.rb.raw = None;
+                self.refresh_limits();
+                return;
+            }
+            if k != phase::IMAGE {
+                k += 1;
+            }
+        }
+        self.state = AxisState::Setup(k);
+    }
+
+    /// A position read that went out in this batch before a write of
+    /// ABS_POS predates it: drop it.
+    fn discard_position_read(&mut self) {
+        if self.rb.read == Some(Read::Position) {
+            self.rb.read = None;
+        }
+    }
+
+    fn start_streaming(&mut self, emit: &mut impl FnMut(Command) -> bool) {
+        self.state = AxisState::Streaming;
+        self.refresh_limits();
+        self.stream(emit);
+    }
+
+    fn plan_stopping(&mut self, emit: &mut impl FnMut(Command) -> bool) {
+        if let Some(cmd) = self.stop.pending {
+            if emit(cmd) {
+                self.stop.pending = None;
+                self.rb.sent_at = self.tick;
+            }
+            return;
+        }
+        let may_stream = self.stop.after == AfterStop::Land && !self.asleep;
+        if may_stream && !self.profile.is_settled() {
+            // A new target during the end-of-move soft stop: go on at once.
+            self.start_streaming(emit);
+            return;
+        }
+        if !self.confirmed_stopped() {
+            return;
+        }
+        if self.stop.zero {
+            if !emit(Command::ResetPos) {
+                return;
+            }
+            self.discard_position_read();
+            self.stop.zero = false;
+            self.rb.chip_pos = 0;
+            self.rb.raw = None;
+            self.rb.error = 0;
+            // Keep whatever was asked for since Set zero, in the new coordinates.
+            self.profile.rebase_fine(0);
+        } else if self.stop.after == AfterStop::Hold {
+            // Exactly where the chip is, even between two logical steps: the
+            // next move (maybe given while stopping) starts from there.
+            self.profile.rebase_fine(self.chip_fine());
+            self.rb.error = 0;
+        }
+        match self.stop.after {
+            AfterStop::Hold => {
+                self.state = AxisState::Idle;
+                self.refresh_limits();
+            }
+            AfterStop::Land => {
+                if self.profile.mode() == Mode::Hold {
+                    // Defensive: hold on the step the chip reached.
+                    self.profile.set_position_fine(self.chip_fine());
+                }
+                self.land(emit);
+            }
+        }
+    }
+
     /// GoTo the target. The chip takes the shortest path modulo 2²², which is
     /// the right one because the residual at landing is a few microsteps.
     fn land(&mut self, emit: &mut impl FnMut(Command) -> bool) {
         let target = self.target_physical();
-        emit(Command::GoTo(sign_extend_22(wrap_22(target as i32))));
-        self.sent_at = self.tick;
-        self.state = AxisState::Landing;
+        if emit(Command::GoTo(sign_extend_22(wrap_22(target as i32)))) {
+            self.rb.sent_at = self.tick;
+            self.state = AxisState::Landing;
+        }
     }
 
     /// A STATUS read after the last one-shot command says not busy, and a
     /// position read came after it.
     fn confirmed_stopped(&self) -> bool {
-        self.status_at > self.sent_at && self.pos_at > self.status_at && !self.status.busy()
+        self.rb.status_at > self.rb.sent_at
+            && self.rb.pos_at > self.rb.status_at
+            && !self.rb.status.busy()
     }
 
     fn stream(&mut self, emit: &mut impl FnMut(Command) -> bool) {
@@ -690,36 +912,41 @@ impl Axis {
         // MAX_SPEED backstop: raised at once when the profile needs more; lowered
         // to the new max speed only once the profile has slowed down to it (a
         // lower max speed mid-move is reached with the profile's DEC, not the chip's).
+        let shift = self.cfg.logical_shift;
         let vmax = self.profile.internal_limits().0.unsigned_abs();
         let now = before.max(self.profile.velocity_internal().unsigned_abs());
         let max_speed = self.profile.limits().max_speed;
-        if self.backstop.0 != max_speed {
-            self.backstop = (max_speed, self.backstop_reg(max_speed));
+        if self.limits.backstop.0 != max_speed || self.limits.backstop.1 == 0 {
+            self.limits.backstop = (max_speed, units::backstop_reg(max_speed, shift));
         }
         let need = if now > vmax {
             let v = super::profile::speed_from_internal(now as i64, self.cfg.tick_us);
-            self.backstop_reg(v.clamp(0, i64::from(u32::MAX)) as u32)
+            units::backstop_reg(v.clamp(0, i64::from(u32::MAX)) as u32, shift)
         } else {
-            self.backstop.1
+            self.limits.backstop.1
         };
-        if need > self.chip_limits.0 || (now <= vmax && need != self.chip_limits.0) {
-            emit(Command::SetParam(Register::MaxSpeed, need));
-            self.chip_limits.0 = need;
+        let change = need > self.limits.max_speed || (now <= vmax && need != self.limits.max_speed);
+        if change && emit(Command::SetParam(Register::MaxSpeed, need)) {
+            self.limits.max_speed = need;
         }
         if self.profile.is_settled() {
-            self.after_stop = AfterStop::Land;
-            emit(Command::SoftStop);
-            self.sent_at = self.tick;
-            self.state = AxisState::Stopping;
+            self.stop.after = AfterStop::Land;
+            if emit(Command::SoftStop) {
+                self.rb.sent_at = self.tick;
+                self.state = AxisState::Stopping;
+            } else {
+                self.stop.pending = Some(Command::SoftStop);
+                self.state = AxisState::Stopping;
+            }
             return;
         }
-        let ff = speed_reg_from_internal(
+        let ff = units::speed_reg_from_internal(
             self.profile.velocity_internal(),
             self.cfg.tick_us,
-            self.cfg.logical_shift,
+            shift,
         );
-        let corr = correction_speed_reg(
-            self.error,
+        let corr = units::correction_speed_reg(
+            self.rb.error,
             self.cfg.tick_us,
             self.cfg.step,
             CORRECTION_TICKS,
@@ -730,45 +957,13 @@ impl Axis {
         } else {
             Direction::Forward
         };
-        let mag = spd
-            .unsigned_abs()
-            .min(u64::from(crate::powerstep::commands::SPEED_MAX)) as u32;
+        let mag = spd.unsigned_abs().min(u64::from(SPEED_MAX)) as u32;
         emit(Command::Run(dir, mag));
-    }
-
-    fn setup_commands(&self, k: u8) -> [Option<Command>; 2] {
-        let want = self.wanted_chip_limits();
-        match k {
-            0 => [
-                Some(Command::HardHiZ),
-                Some(Command::SetParam(
-                    Register::StepMode,
-                    u32::from(self.cfg.step_mode().to_reg()),
-                )),
-            ],
-            1 => [
-                self.chip_config
-                    .map(|c| Command::SetParam(Register::Config, u32::from(c))),
-                Some(Command::SetParam(Register::MaxSpeed, want.0)),
-            ],
-            2 => [
-                Some(Command::SetParam(Register::Acc, want.1)),
-                Some(Command::SetParam(Register::Dec, want.2)),
-            ],
-            // The bridges stay in HiZ until the first motion or `energize`.
-            _ => [
-                Some(Command::SetParam(
-                    Register::AbsPos,
-                    wrap_22(self.chip_pos as i32),
-                )),
-                None,
-            ],
-        }
     }
 
     /// Take this tick's replies for the axis's device.
     pub fn absorb(&mut self, replies: &Replies, device: usize) {
-        match self.read.take() {
+        match self.rb.read.take() {
             Some(Read::Position) => {
                 if let Some(raw) = replies.param(device, Register::AbsPos) {
                     self.take_position(raw);
@@ -787,34 +982,43 @@ impl Axis {
         if matches!(self.state, AxisState::Setup(_)) {
             return; // the chip's frame is being re-based
         }
-        let base = self.raw.unwrap_or(wrap_22(self.chip_pos as i32));
+        let rb = &mut self.rb;
+        let base = rb.raw.unwrap_or(wrap_22(rb.chip_pos as i32));
         let delta = sign_extend_22(raw.wrapping_sub(base) & 0x3F_FFFF);
-        self.chip_pos += i64::from(delta);
-        self.raw = Some(raw);
-        self.pos_at = self.tick;
-        self.error = self.expected_at_read - self.chip_pos;
-        if self.state != AxisState::Streaming {
-            self.error = 0;
-        }
+        rb.chip_pos += i64::from(delta);
+        rb.raw = Some(raw);
+        rb.pos_at = self.tick;
+        // Measured in every state: when a move starts while the chip is
+        // still stopping or landing, the correction starts at once.
+        rb.error = if self.stop.zero {
+            0
+        } else {
+            rb.expected_at_read - rb.chip_pos
+        };
     }
 
     fn take_status(&mut self, s: Status) {
-        self.status = s;
-        self.status_at = self.tick;
-        if s.uvlo() && !matches!(self.state, AxisState::Setup(_)) {
-            // Reset or undervoltage: positions read since the last clean
-            // STATUS are not trustworthy; stop where the chip was then.
-            self.fault = Some(AxisFault::ChipReset);
-            self.resets = self.resets.wrapping_add(1);
-            self.chip_pos = self.pos_at_status;
-            self.raw = None;
-            self.error = 0;
-            let here = self.actual_position();
-            self.profile.set_position(here);
-            self.pending = None;
-            self.chip_limits = (0, 0, 0);
-            self.state = AxisState::Setup(0);
-            return;
+        self.rb.status = s;
+        self.rb.status_at = self.tick;
+        if s.uvlo() {
+            // Reset or undervoltage. In a setup, only a read issued after
+            // the setup began reports a new one (the power-up flag, or the
+            // one that started this setup, was cleared by the first read).
+            let new = match self.state {
+                AxisState::Setup(_) => self.tick > self.rb.setup_at,
+                _ => true,
+            };
+            if new {
+                self.fault = Some(AxisFault::ChipReset);
+                self.resets = self.resets.wrapping_add(1);
+                if !matches!(self.state, AxisState::Setup(_)) {
+                    // Positions read since the last clean STATUS are not
+                    // trustworthy; stop where the chip was then.
+                    self.rb.chip_pos = self.rb.pos_at_status;
+                }
+                self.restart_setup();
+                return;
+            }
         }
         if s.overcurrent()
             || matches!(
@@ -829,7 +1033,7 @@ impl Axis {
             });
             // The power stage is in trouble: bridges off (they may already be,
             // with OC_SD), hold where the chip is, no landing move.
-            if !matches!(self.state, AxisState::Setup(_)) && !self.chip_off_for_fault {
+            if self.is_configured() && !self.chip_off_for_fault {
                 self.profile.stop_now();
                 self.chip_off_for_fault = true;
                 self.stop_then(AfterStop::Hold, Command::HardHiZ);
@@ -837,7 +1041,7 @@ impl Axis {
         } else {
             self.chip_off_for_fault = false;
         }
-        self.pos_at_status = self.chip_pos;
+        self.rb.pos_at_status = self.rb.chip_pos;
     }
 }
 
@@ -845,46 +1049,99 @@ impl Axis {
 mod tests {
     use super::*;
 
-    #[test]
-    fn logical_to_physical_scales_by_powers_of_two() {
-        // logical 1/16 (4) on a chip at 1/128 (7): ×8
-        assert_eq!(logical_to_physical(100, 4, StepSel::OneTwentyEighth), 800);
-        assert_eq!(physical_to_logical(800, 4, StepSel::OneTwentyEighth), 100);
-        // logical 1/256 (8) on a chip at 1/16: ÷16, floor
-        assert_eq!(logical_to_physical(4096, 8, StepSel::Sixteenth), 256);
-        assert_eq!(logical_to_physical(-1, 8, StepSel::Sixteenth), -1);
-        assert_eq!(physical_to_logical(256, 8, StepSel::Sixteenth), 4096);
-        // full steps on full steps
-        assert_eq!(logical_to_physical(-7, 0, StepSel::Full), -7);
+    fn axis() -> Axis {
+        let cfg = AxisConfig {
+            tick_us: 1000,
+            logical_shift: 4,
+            step: StepSel::OneTwentyEighth,
+            drive: DriveMode::Voltage,
+        };
+        Axis::new(
+            cfg,
+            Limits {
+                max_speed: 16_000,
+                acc: 160_000,
+                dec: 160_000,
+            },
+        )
     }
 
     #[test]
-    fn full_step_rates_round_up() {
-        // 1000 logical 1/16 steps/s = 62.5 full steps/s
-        assert_eq!(full_steps_q16_from_logical(1000, 4), 62 * 65536 + 32768);
-        assert_eq!(full_steps_q16_from_logical(1, 8), 256);
-        assert_eq!(full_steps_q16_from_logical(3, 1), 98_304);
-    }
-
-    #[test]
-    fn speed_register_from_profile_velocity() {
-        // 1 logical full step per 1 ms tick = 1000 full steps/s = 67108.864 SPEED
-        assert_eq!(speed_reg_from_internal(1 << 32, 1000, 0), 67_108);
-        // same speed in 1/128 logical steps = 1000/128 full steps/s
-        assert_eq!(speed_reg_from_internal(1 << 32, 1000, 7), 524);
-        assert_eq!(speed_reg_from_internal(-(1 << 32), 1000, 0), -67_108);
-    }
-
-    #[test]
-    fn correction_of_one_full_step_over_eight_ticks() {
-        // 128 microsteps (one full step at 1/128) in 8 ms = 125 full steps/s = 8388.6 SPEED
+    fn the_image_writes_step_mode_and_config_first() {
+        let mut a = axis().with_chip_config(0x2C98);
+        a.set_currents(40, 50);
+        let order: heapless::Vec<Register, 8> = core::iter::from_fn(|| {
+            let (r, _) = a.image.next(|_| true)?;
+            a.image.written(r);
+            Some(r)
+        })
+        .collect();
         assert_eq!(
-            correction_speed_reg(128, 1000, StepSel::OneTwentyEighth, 8),
-            8388
+            &order[..],
+            &[
+                Register::StepMode,
+                Register::Config,
+                Register::KvalHold,
+                Register::KvalRun,
+                Register::KvalAcc,
+                Register::KvalDec
+            ]
         );
-        assert_eq!(
-            correction_speed_reg(-128, 1000, StepSel::OneTwentyEighth, 8),
-            -8388
-        );
+    }
+
+    #[test]
+    fn a_chip_reset_makes_every_owned_register_dirty_again() {
+        let mut a = axis();
+        a.set_currents(40, 50);
+        while let Some((r, _)) = a.image.next(|_| true) {
+            a.image.written(r);
+        }
+        assert!(a.image.is_clean());
+        a.set_currents(40, 50);
+        assert!(a.image.is_clean(), "the same values are not written again");
+        a.image.on_reset();
+        assert_eq!(a.image.get(Register::KvalHold), Some(40));
+        assert!(a.image.next(|r| r == Register::KvalDec).is_some());
+    }
+
+    #[test]
+    fn motion_registers_are_not_writable_through_the_image() {
+        let mut a = axis();
+        for r in [
+            Register::AbsPos,
+            Register::StepMode,
+            Register::MaxSpeed,
+            Register::Acc,
+            Register::Dec,
+            Register::Speed,
+            Register::Status,
+        ] {
+            assert!(!a.set_register(r, 1), "{r:?}");
+        }
+        assert!(a.set_register(Register::OcdTh, 12));
+        assert_eq!(a.chip_image().get(Register::OcdTh), Some(12));
+    }
+
+    #[test]
+    fn set_zero_reads_zero_at_once() {
+        let mut a = axis();
+        a.state = AxisState::Idle;
+        a.rb.chip_pos = 12_345;
+        a.set_zero();
+        assert_eq!(a.actual_position(), 0);
+        assert_eq!(a.required_position(), 0);
+    }
+
+    #[test]
+    fn limits_beyond_the_chip_are_clamped_for_the_profile() {
+        let mut a = axis();
+        a.set_logical_shift(0);
+        a.set_limits(Limits {
+            max_speed: 65_535,
+            acc: 65_535,
+            dec: 65_535,
+        });
+        assert_eq!(a.requested_limits().max_speed, 65_535);
+        assert_eq!(a.profile().limits(), a.limit_cap());
     }
 }

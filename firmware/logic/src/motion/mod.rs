@@ -5,7 +5,8 @@
 pub mod axis;
 pub mod group;
 pub mod profile;
+pub mod units;
 
-pub use axis::{Axis, AxisConfig, AxisFault, AxisState};
+pub use axis::{Axis, AxisConfig, AxisFault, AxisState, ChipImage};
 pub use group::{AxisGroup, TickReport};
 pub use profile::{Limits, Mode, Profile};

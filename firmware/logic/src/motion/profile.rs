@@ -16,6 +16,11 @@
 //!   at most `acc` and a slow-down at most `dec` (quantised down). When
 //!   `max_speed` is lowered mid-move the axis slows down at `dec`. A velocity
 //!   never changes sign within one tick: it passes through zero.
+//! * **Lower limits never make a target unreachable.** A deceleration lowered
+//!   while the axis moves toward a target it could still stop on applies at
+//!   once only as far as the axis can still stop on that target: the
+//!   generator brakes with the smallest deceleration between the new and the
+//!   old one that still lands exactly, until the axis next comes to rest.
 //! * **Exact landing.** In position mode the axis brakes on the discrete
 //!   braking curve, so a move to a target it can still reach ends with the
 //!   position *exactly* on the target and velocity zero, without overshoot.
@@ -73,7 +78,11 @@ pub struct Profile {
     limits: Limits,
     vmax: i64,
     acc: i64,
+    /// Deceleration in use: `dec_limit`, or more while a lowered limit would
+    /// otherwise pass the target (see the module doc).
     dec: i64,
+    /// Deceleration of `limits`.
+    dec_limit: i64,
 }
 
 /// Steps/s → 2⁻³² steps/tick, rounded down (never above the limit).
@@ -144,6 +153,7 @@ impl Profile {
             vmax: 1,
             acc: 1,
             dec: 1,
+            dec_limit: 1,
         };
         p.set_limits(limits);
         p
@@ -153,12 +163,51 @@ impl Profile {
         self.tick_us
     }
 
-    /// New max speed / acceleration / deceleration; effective at the next tick.
+    /// New max speed / acceleration / deceleration; effective at the next
+    /// tick. A lower deceleration never lets a reachable target be passed
+    /// (module doc).
     pub fn set_limits(&mut self, limits: Limits) {
         self.limits = limits;
         self.vmax = speed_to_internal(limits.max_speed.max(1), self.tick_us).max(1);
         self.acc = acc_to_internal(limits.acc.max(1), self.tick_us);
-        self.dec = acc_to_internal(limits.dec.max(1), self.tick_us);
+        let dec = acc_to_internal(limits.dec.max(1), self.tick_us);
+        self.dec = if dec < self.dec {
+            self.stoppable_dec(dec)
+        } else {
+            dec
+        };
+        self.dec_limit = dec;
+    }
+
+    /// The smallest deceleration in `[lower, self.dec]` with which the axis
+    /// still stops on its target, if it is moving toward one it can stop on
+    /// now; `lower` otherwise.
+    fn stoppable_dec(&self, lower: i64) -> i64 {
+        let Mode::Position(target) = self.mode else {
+            return lower;
+        };
+        let rem = (i128::from(target) << POS_FRAC) - self.pos;
+        let (r, v) = if self.vel > 0 {
+            (rem, self.vel)
+        } else {
+            (-rem, -self.vel)
+        };
+        // Braking as hard as `d` allows from here: v, then max(v − d, 0) …
+        let stops = |d: i64| reach(v, (v - d).max(0), d) <= r;
+        if v <= 0 || r <= 0 || stops(lower) || !stops(self.dec) {
+            return lower;
+        }
+        // reach(v, v − d, d) does not increase with d: bisect.
+        let (mut lo, mut hi) = (lower, self.dec);
+        while hi - lo > 1 {
+            let mid = lo + (hi - lo) / 2;
+            if stops(mid) {
+                hi = mid;
+            } else {
+                lo = mid;
+            }
+        }
+        hi
     }
 
     pub fn limits(&self) -> Limits {
@@ -183,10 +232,8 @@ impl Profile {
 
     /// Stop at once (no ramp) on the nearest whole step.
     pub fn stop_now(&mut self) {
-        self.vel = 0;
         let whole = self.position_round();
-        self.pos = i128::from(whole) << POS_FRAC;
-        self.mode = Mode::Hold;
+        self.set_position(whole);
     }
 
     /// Decelerate with `dec` to a stop on the first whole step at or beyond
@@ -208,9 +255,7 @@ impl Profile {
     /// Define the current position as `steps` (the axis must be at rest; a
     /// moving axis is stopped first, as the PoStep60 does for Set zero).
     pub fn set_position(&mut self, steps: i64) {
-        self.vel = 0;
-        self.pos = i128::from(steps) << POS_FRAC;
-        self.mode = Mode::Hold;
+        self.set_position_fine(i128::from(steps) << POS_FRAC);
     }
 
     /// Define the current position exactly, in 2⁻³³ steps (at rest, like
@@ -219,6 +264,16 @@ impl Profile {
         self.vel = 0;
         self.pos = fine;
         self.mode = Mode::Hold;
+        self.dec = self.dec_limit;
+    }
+
+    /// Re-base an axis at rest to `fine` (2⁻³³ steps) and keep what it was
+    /// asked to do: a target or speed given while it was stopping is kept,
+    /// in the new coordinates.
+    pub fn rebase_fine(&mut self, fine: i128) {
+        self.vel = 0;
+        self.pos = fine;
+        self.dec = self.dec_limit;
     }
 
     /// Position, rounded to the nearest step (halves away from zero).
@@ -285,6 +340,10 @@ impl Profile {
         };
         self.pos += i128::from(self.vel) + i128::from(next);
         self.vel = next;
+        if next == 0 {
+            // At rest the axis can stop anywhere: back to the limit's deceleration.
+            self.dec = self.dec_limit;
+        }
         if let Mode::Position(t) = self.mode {
             let goal = i128::from(t) << POS_FRAC;
             // Parity leftovers of the last braking tick are below 2⁻³² steps.

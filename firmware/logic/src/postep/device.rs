@@ -39,8 +39,7 @@
 use super::board::Board;
 use super::current::Current;
 use super::settings::{AxisSettings, DriverMode, TEMPERATURE_LIMIT_MAX};
-use crate::motion::{Axis, AxisState, Limits};
-use crate::powerstep::registers::Register;
+use crate::motion::{Axis, Limits};
 use crate::powerstep::status::ThermalStatus;
 
 /// Idle current after this long without motion (manual 7.2).
@@ -150,8 +149,6 @@ pub enum Query {
 pub enum Value {
     U8(u8),
     U16(u16),
-    /// Signed 16-bit (current speed).
-    I16(i16),
     I32(i32),
     Current(Current),
     /// Fixed byte sequences (HW/FW info, loopback).
@@ -221,13 +218,13 @@ pub struct Device {
     switch_closed: Option<bool>,
     inputs: Inputs,
     loopback: [u8; 4],
-    /// Current registers as last queued (hold, run).
-    applied: Option<(u32, u32)>,
     auto_started: bool,
     /// Chip resets seen so far (a new one latches UVLO).
     resets_seen: u32,
     /// Requests refused or ignored since boot (diagnostics).
     pub refused: u32,
+    /// Limits clamped to what the chip can follow (diagnostics).
+    pub clamps: u32,
 }
 
 impl Device {
@@ -242,11 +239,34 @@ impl Device {
             switch_closed: None,
             inputs: Inputs::default(),
             loopback: [0; 4],
-            applied: None,
             auto_started: false,
             resets_seen: 0,
             refused: 0,
+            clamps: 0,
         }
+    }
+
+    /// Clamp the speed/acceleration settings to what the axis's chip can
+    /// follow in its step mode (SPEC.md "Limits"), hand them to the axis,
+    /// and count a clamp. The clamped values are what reads return.
+    pub fn clamp_limits(&mut self, axis: &mut Axis) {
+        let cap = axis.limit_cap();
+        let s = &mut self.settings;
+        let clamped = [
+            (&mut s.max_speed, cap.max_speed),
+            (&mut s.acc, cap.acc),
+            (&mut s.dec, cap.dec),
+        ]
+        .into_iter()
+        .fold(false, |any, (v, max)| {
+            let over = *v > max;
+            *v = (*v).min(max);
+            any | over
+        });
+        if clamped {
+            self.clamps = self.clamps.saturating_add(1);
+        }
+        axis.set_limits(self.limits());
     }
 
     /// The profile limits of the settings.
@@ -283,8 +303,7 @@ impl Device {
             self.resets_seen = axis.chip_resets();
             self.faults |= fault::UVLO;
         }
-        let configured = !matches!(axis.state(), AxisState::Setup(_));
-        if configured {
+        if axis.is_configured() {
             self.latch_faults(axis);
             self.watch_end_switch(axis);
             if !self.auto_started {
@@ -379,16 +398,9 @@ impl Device {
             let f = ma(self.settings.full_scale);
             (f, f)
         };
-        let regs = (board.current_register(hold), board.current_register(run));
-        if self.applied != Some(regs) {
-            let ok = axis.write_register(Register::KvalHold, regs.0)
-                && axis.write_register(Register::KvalRun, regs.1)
-                && axis.write_register(Register::KvalAcc, regs.1)
-                && axis.write_register(Register::KvalDec, regs.1);
-            if ok {
-                self.applied = Some(regs);
-            }
-        }
+        // The axis keeps them in its chip image: written when they change
+        // and again after every chip reset.
+        axis.set_currents(board.current_register(hold), board.current_register(run));
     }
 
     fn blocked(&self) -> Result<(), CommandError> {
@@ -465,6 +477,8 @@ impl Device {
             Request::SetStepMode(m) if m <= 8 => {
                 self.settings.step_mode = m;
                 axis.set_logical_shift(m);
+                // The same numbers mean other speeds now: clamp again.
+                self.clamp_limits(axis);
             }
             Request::SetStepMode(_) => return self.refuse(CommandError::Ignored),
             Request::SetTemperatureLimit(t) => {
@@ -488,15 +502,15 @@ impl Device {
             }
             Request::SetMaxSpeed(v) => {
                 self.settings.max_speed = u32::from(v);
-                axis.set_limits(self.limits());
+                self.clamp_limits(axis);
             }
             Request::SetAcceleration(v) => {
                 self.settings.acc = u32::from(v);
-                axis.set_limits(self.limits());
+                self.clamp_limits(axis);
             }
             Request::SetDeceleration(v) => {
                 self.settings.dec = u32::from(v);
-                axis.set_limits(self.limits());
+                self.clamp_limits(axis);
             }
             Request::SetRequestedSpeed(v) => {
                 if self.settings.mode != DriverMode::AutoRun {
@@ -589,10 +603,10 @@ impl Device {
             Query::MaxSpeed => sat16(s.max_speed),
             Query::Acceleration => sat16(s.acc),
             Query::Deceleration => sat16(s.dec),
-            Query::CurrentSpeed => Value::I16(
-                axis.profile()
-                    .velocity()
-                    .clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16,
+            // Manual: BYTE1·256 + BYTE0, a magnitude: every speed up to
+            // 65 535 steps/s reads as it is (the sign is in the extensions).
+            Query::CurrentSpeed => Value::U16(
+                u16::try_from(axis.profile().velocity().unsigned_abs()).unwrap_or(u16::MAX),
             ),
             Query::RequestedSpeed => Value::U16(s.requested_speed),
             Query::Invert => Value::U8(u8::from(s.invert)),

@@ -303,10 +303,6 @@ pub fn encode(value: Value, out: &mut [u8; RESPONSE_MAX]) -> usize {
             let [a, b] = v.to_le_bytes();
             ([a, b, 0, 0, 0], 2)
         }
-        Value::I16(v) => {
-            let [a, b] = v.to_le_bytes();
-            ([a, b, 0, 0, 0], 2)
-        }
         Value::I32(v) => {
             let [a, b, c, d] = v.to_le_bytes();
             ([a, b, c, d, 0], 4)

@@ -204,10 +204,6 @@ pub fn encode(value: Value, out: &mut [u8; 2 * REGISTERS_MAX]) -> usize {
             let [a, b] = v.to_be_bytes();
             ([a, b, 0, 0, 0, 0], 2)
         }
-        Value::I16(v) => {
-            let [a, b] = v.to_be_bytes();
-            ([a, b, 0, 0, 0, 0], 2)
-        }
         Value::I32(v) => {
             let [a, b, c, d] = v.to_be_bytes();
             ([a, b, c, d, 0, 0], 4)
@@ -350,8 +346,6 @@ mod tests {
         assert_eq!(&o[..2], [0, 4]);
         assert_eq!(encode(Value::U16(333), &mut o), 2);
         assert_eq!(&o[..2], [0x01, 0x4D]);
-        assert_eq!(encode(Value::I16(-200), &mut o), 2);
-        assert_eq!(&o[..2], [0xFF, 0x38]);
         assert_eq!(encode(Value::I32(-1000), &mut o), 4);
         assert_eq!(&o[..4], [0xFF, 0xFF, 0xFC, 0x18]);
         assert_eq!(

@@ -1,0 +1,362 @@
+//! Unit conversions of the motion layer: PoStep60 logical steps ↔ the chip's
+//! physical microsteps, profile velocities → chip SPEED values, profile
+//! limits ↔ the chip's MAX_SPEED/ACC/DEC registers, and what a chip can
+//! follow in each step mode. Exact integer arithmetic; every function is
+//! `const` and tested with worked numbers.
+//!
+//! Logical steps are 1/2^L full step (PoStep60 step mode L = 0 … 8), physical
+//! microsteps 1/2^S full step (the chip's STEP_SEL S). Chip speeds and
+//! accelerations count full steps (facts doc §4).
+
+use super::profile::Limits;
+use crate::powerstep::fields::StepSel;
+use crate::powerstep::units::ACC_MAX_FINITE;
+
+/// Finest PoStep60 step mode (8 = 1/256).
+pub const MAX_LOGICAL_SHIFT: u8 = 8;
+
+/// The chip's ACC/DEC are the profile's times this ratio (3/2): with equal
+/// ramps the chip could never catch up a following error while the profile
+/// accelerates or brakes at its limit.
+pub const RAMP_HEADROOM_NUM: u64 = 3;
+pub const RAMP_HEADROOM_DEN: u64 = 2;
+
+/// MAX_SPEED is a backstop this fraction (1/4) above the profile's max speed …
+pub const BACKSTOP_QUARTERS: u64 = 1;
+/// … plus this many full steps/s, so corrections have room at low speeds.
+pub const BACKSTOP_EXTRA: u64 = 16;
+
+/// Largest MAX_SPEED register value (10 bit).
+const MAX_SPEED_REG_MAX: u64 = 0x3FF;
+
+/// Logical position → physical microsteps (floor when the logical step is finer).
+pub const fn logical_to_physical(pos: i64, logical_shift: u8, step: StepSel) -> i64 {
+    let s = step.shift() as i64;
+    let l = logical_shift as i64;
+    if s >= l {
+        pos << (s - l)
+    } else {
+        pos >> (l - s)
+    }
+}
+
+/// Physical microsteps → logical position (exact when the logical step is coarser
+/// or equal; otherwise the physical microstep's first logical step).
+pub const fn physical_to_logical(pos: i64, logical_shift: u8, step: StepSel) -> i64 {
+    let s = step.shift() as i64;
+    let l = logical_shift as i64;
+    if s >= l {
+        // Floor: a physical position between two logical steps reads as the lower one.
+        pos >> (s - l)
+    } else {
+        pos << (l - s)
+    }
+}
+
+/// Logical steps/s (or /s²) → full steps/s in Q16.16, rounded up, not capped.
+const fn full_q16(v: u32, logical_shift: u8) -> u64 {
+    ((v as u64) << 16).div_ceil(1u64 << logical_shift)
+}
+
+/// Logical steps/s (or /s²) → full steps/s in Q16.16, rounded up (capped at `u32::MAX`).
+pub const fn full_steps_q16_from_logical(v: u32, logical_shift: u8) -> u32 {
+    let r = full_q16(v, logical_shift);
+    if r > u32::MAX as u64 {
+        u32::MAX
+    } else {
+        r as u32
+    }
+}
+
+/// Profile velocity (2⁻³² logical steps per tick) → chip SPEED units (signed):
+/// `v · 10⁶ · 2²⁸ / (tick_us · 2³² · 2^L · 4·10⁶) = v / (tick_us · 2^(6+L))`.
+pub const fn speed_reg_from_internal(v: i64, tick_us: u32, logical_shift: u8) -> i64 {
+    let div = (tick_us as i64) << (6 + logical_shift as i64);
+    if div == 0 {
+        0
+    } else {
+        v / div
+    }
+}
+
+/// A following error of `e` physical microsteps corrected over `ticks` ticks,
+/// in chip SPEED units: `e / 2^S` full steps per `ticks · tick_us` µs.
+pub const fn correction_speed_reg(e: i64, tick_us: u32, step: StepSel, ticks: i64) -> i64 {
+    let div = (tick_us as i64) * ticks;
+    if div <= 0 {
+        return 0;
+    }
+    // full steps/s = e · 10⁶ / (2^S · div); reg = that · 2²⁸ / 4·10⁶.
+    // |e| beyond 2³⁰ microsteps is no following error but a lost position:
+    // clamp so the shift cannot overflow (the speed saturates anyway).
+    let e = if e > 1 << 30 {
+        1 << 30
+    } else if e < -(1 << 30) {
+        -(1 << 30)
+    } else {
+        e
+    };
+    (e << 26) / (div << step.shift())
+}
+
+/// The MAX_SPEED register a profile max speed (logical steps/s) needs, not
+/// capped at the register's 10 bits: the backstop 25 % + 16 full steps/s
+/// above it, rounded to nearest (at least 1).
+const fn backstop_reg_exact(v: u32, logical_shift: u8) -> u64 {
+    let full = full_q16(v, logical_shift);
+    let backstop = full + full * BACKSTOP_QUARTERS / 4 + (BACKSTOP_EXTRA << 16);
+    // MAX_SPEED = v · 2¹⁸ / 4·10⁶ = v_q16 · 4 / 4·10⁶ (units::max_speed_from_steps_per_s)
+    let reg = (backstop * 4 + 2_000_000) / 4_000_000;
+    if reg == 0 {
+        1
+    } else {
+        reg
+    }
+}
+
+/// The MAX_SPEED register for a profile max speed: the backstop, capped at 0x3FF.
+pub const fn backstop_reg(v: u32, logical_shift: u8) -> u32 {
+    let r = backstop_reg_exact(v, logical_shift);
+    if r > MAX_SPEED_REG_MAX {
+        MAX_SPEED_REG_MAX as u32
+    } else {
+        r as u32
+    }
+}
+
+/// The ACC/DEC register for a profile acceleration (logical steps/s²), not
+/// capped: RAMP_HEADROOM times faster, plus one LSB for rounding.
+const fn ramp_reg_exact(a: u32, logical_shift: u8) -> u64 {
+    let full = full_q16(a, logical_shift);
+    let fast = full * RAMP_HEADROOM_NUM / RAMP_HEADROOM_DEN;
+    // ACC = a · 2⁴⁰ / (4·10⁶)² = a_q16 · 2²⁴ / 1.6·10¹³ (units::acc_from_steps_per_s2)
+    let den: u128 = 16_000_000_000_000;
+    let reg = (((fast as u128) << 24) + den / 2) / den;
+    let reg = if reg == 0 { 1 } else { reg };
+    if reg > u64::MAX as u128 {
+        u64::MAX
+    } else {
+        reg as u64 + 1
+    }
+}
+
+/// The chip's ACC/DEC register for a profile acceleration: capped at the
+/// largest finite value (0xFFE).
+pub const fn ramp_reg(a: u32, logical_shift: u8) -> u32 {
+    let r = ramp_reg_exact(a, logical_shift);
+    if r > ACC_MAX_FINITE as u64 {
+        ACC_MAX_FINITE
+    } else {
+        r as u32
+    }
+}
+
+/// Largest `x` in `1..=u32::MAX` with `f(x) ≤ limit` (`f` non-decreasing), or 1.
+const fn largest_within(limit: u64, logical_shift: u8, ramp: bool) -> u32 {
+    const fn f(x: u32, logical_shift: u8, ramp: bool) -> u64 {
+        if ramp {
+            ramp_reg_exact(x, logical_shift)
+        } else {
+            backstop_reg_exact(x, logical_shift)
+        }
+    }
+    let (mut lo, mut hi) = (1u64, u32::MAX as u64);
+    if f(hi as u32, logical_shift, ramp) <= limit {
+        return u32::MAX;
+    }
+    // Invariant: f(hi) > limit; f(lo) ≤ limit unless lo = 1 fails too.
+    while hi - lo > 1 {
+        let mid = lo + (hi - lo) / 2;
+        if f(mid as u32, logical_shift, ramp) <= limit {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    lo as u32
+}
+
+/// The largest profile acceleration (logical steps/s²) that a chip whose
+/// ACC (or DEC) register holds `reg` can follow with its headroom.
+pub const fn ramp_capability(reg: u32, logical_shift: u8) -> u32 {
+    largest_within(reg as u64, logical_shift, true)
+}
+
+/// The fastest profile limits a powerSTEP01 can follow in logical step mode
+/// `logical_shift`: max speed whose backstop still fits MAX_SPEED (0x3FF ≈
+/// 15 610 full steps/s), accelerations whose ramps (× 3/2) still fit the
+/// largest finite ACC/DEC (0xFFE ≈ 59 575 full steps/s²).
+pub const fn limit_cap(logical_shift: u8) -> Limits {
+    let shift = if logical_shift > MAX_LOGICAL_SHIFT {
+        MAX_LOGICAL_SHIFT
+    } else {
+        logical_shift
+    };
+    let a = largest_within(ACC_MAX_FINITE as u64, shift, true);
+    Limits {
+        max_speed: largest_within(MAX_SPEED_REG_MAX, shift, false),
+        acc: a,
+        dec: a,
+    }
+}
+
+/// [`limit_cap`] for every logical step mode, computed at compile time.
+pub const LIMIT_CAPS: [Limits; 9] = {
+    let mut caps = [Limits {
+        max_speed: 0,
+        acc: 0,
+        dec: 0,
+    }; 9];
+    let mut l = 0;
+    while l < 9 {
+        caps[l] = limit_cap(l as u8);
+        l += 1;
+    }
+    caps
+};
+
+/// `limits` clamped to what the chip can follow in logical step mode `shift`.
+pub const fn clamp_to_chip(limits: Limits, shift: u8) -> Limits {
+    let cap = LIMIT_CAPS[if shift as usize > 8 {
+        8
+    } else {
+        shift as usize
+    }];
+    Limits {
+        max_speed: min(limits.max_speed, cap.max_speed),
+        acc: min(limits.acc, cap.acc),
+        dec: min(limits.dec, cap.dec),
+    }
+}
+
+const fn min(a: u32, b: u32) -> u32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::powerstep::units::{acc_to_steps_per_s2, max_speed_to_steps_per_s};
+
+    #[test]
+    fn logical_to_physical_scales_by_powers_of_two() {
+        // logical 1/16 (4) on a chip at 1/128 (7): ×8
+        assert_eq!(logical_to_physical(100, 4, StepSel::OneTwentyEighth), 800);
+        assert_eq!(physical_to_logical(800, 4, StepSel::OneTwentyEighth), 100);
+        // logical 1/256 (8) on a chip at 1/16: ÷16, floor
+        assert_eq!(logical_to_physical(4096, 8, StepSel::Sixteenth), 256);
+        assert_eq!(logical_to_physical(-1, 8, StepSel::Sixteenth), -1);
+        assert_eq!(physical_to_logical(256, 8, StepSel::Sixteenth), 4096);
+        // full steps on full steps
+        assert_eq!(logical_to_physical(-7, 0, StepSel::Full), -7);
+    }
+
+    #[test]
+    fn full_step_rates_round_up() {
+        // 1000 logical 1/16 steps/s = 62.5 full steps/s
+        assert_eq!(full_steps_q16_from_logical(1000, 4), 62 * 65536 + 32768);
+        assert_eq!(full_steps_q16_from_logical(1, 8), 256);
+        assert_eq!(full_steps_q16_from_logical(3, 1), 98_304);
+    }
+
+    #[test]
+    fn speed_register_from_profile_velocity() {
+        // 1 logical full step per 1 ms tick = 1000 full steps/s = 67108.864 SPEED
+        assert_eq!(speed_reg_from_internal(1 << 32, 1000, 0), 67_108);
+        // same speed in 1/128 logical steps = 1000/128 full steps/s
+        assert_eq!(speed_reg_from_internal(1 << 32, 1000, 7), 524);
+        assert_eq!(speed_reg_from_internal(-(1 << 32), 1000, 0), -67_108);
+    }
+
+    #[test]
+    fn correction_of_one_full_step_over_eight_ticks() {
+        // 128 microsteps (one full step at 1/128) in 8 ms = 125 full steps/s = 8388.6 SPEED
+        assert_eq!(
+            correction_speed_reg(128, 1000, StepSel::OneTwentyEighth, 8),
+            8388
+        );
+        assert_eq!(
+            correction_speed_reg(-128, 1000, StepSel::OneTwentyEighth, 8),
+            -8388
+        );
+    }
+
+    #[test]
+    fn backstop_is_a_quarter_and_16_steps_above_the_max_speed() {
+        // 1000 full steps/s → 1266 full steps/s → 1266 · 0.065536 = 82.97 → 83
+        assert_eq!(backstop_reg(1000, 0), 83);
+        // the same speed as 1/16 steps
+        assert_eq!(backstop_reg(16_000, 4), 83);
+        // 0 steps/s still gives the 16 steps/s backstop: 1.05 → 1
+        assert_eq!(backstop_reg(0, 0), 1);
+        // beyond the register: capped at 0x3FF
+        assert_eq!(backstop_reg(65_535, 0), 0x3FF);
+    }
+
+    #[test]
+    fn ramps_are_one_and_a_half_times_the_profile_plus_one_lsb() {
+        // 20 000 full steps/s² · 1.5 = 30 000 → 30 000 · 0.068719 = 2061.6 → 2062, + 1
+        assert_eq!(ramp_reg(20_000, 0), 2063);
+        // the default-like 2008 steps/s²: 3012 · 0.0687 = 206.99 → 207, + 1
+        assert_eq!(ramp_reg(2008 * 128, 7), 208);
+        assert_eq!(ramp_reg(65_535, 0), ACC_MAX_FINITE);
+    }
+
+    #[test]
+    fn ramp_capability_inverts_the_ramp_register() {
+        for shift in 0..=8 {
+            for reg in [2, 3, 208, 2063, 0xFFE] {
+                let a = ramp_capability(reg, shift);
+                assert!(ramp_reg(a, shift) <= reg, "shift {shift} reg {reg}");
+                if a < u32::MAX {
+                    assert!(ramp_reg_exact(a + 1, shift) > u64::from(reg));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_chip_caps_full_step_limits_at_12_481_steps_per_s_and_39_712_per_s2() {
+        // MAX_SPEED 0x3FF = 15 609.7 full steps/s; the backstop is v·1.25 + 16.
+        let cap = limit_cap(0);
+        assert_eq!(cap.max_speed, 12_481);
+        assert!(backstop_reg(cap.max_speed, 0) <= 0x3FF);
+        // (rounded to nearest: 12 481 · 1.25 + 16 = 15 617 → 1023.49 → 0x3FF)
+        let backstop = (cap.max_speed + 1) as f64 * 1.25 + 16.0;
+        assert!(backstop * 0.065536 > 1023.5);
+        // 0xFFE = 59 575.5 full steps/s²; the ramp is a·1.5 (+1 LSB).
+        assert_eq!(cap.acc, 39_712);
+        assert_eq!(cap.dec, cap.acc);
+        assert!(acc_to_steps_per_s2(0xFFE) >> 16 >= 59_575);
+        assert_eq!(max_speed_to_steps_per_s(0x3FF) / 1_000_000, 0x3FF);
+    }
+
+    #[test]
+    fn finer_step_modes_scale_the_cap_by_their_steps_per_full_step() {
+        // 1/16 (4): the full-step cap times 16 (± the rounding of a step)
+        let cap = limit_cap(4);
+        assert!((cap.max_speed as i64 - 12_481 * 16).abs() < 16);
+        assert!((cap.acc as i64 - 39_712 * 16).abs() < 16);
+        // A 16-bit PoStep60 value can never exceed it at 1/8 or finer.
+        assert!(limit_cap(3).max_speed > 65_535 && limit_cap(3).acc > 65_535);
+        assert_eq!(LIMIT_CAPS[4], cap);
+    }
+
+    #[test]
+    fn clamping_keeps_what_the_chip_can_do() {
+        let l = Limits {
+            max_speed: 65_535,
+            acc: 100,
+            dec: 65_535,
+        };
+        let c = clamp_to_chip(l, 0);
+        assert_eq!(c.max_speed, 12_481);
+        assert_eq!(c.acc, 100);
+        assert_eq!(c.dec, 39_712);
+        assert_eq!(clamp_to_chip(l, 8), l);
+    }
+}

@@ -1,0 +1,527 @@
+//! Motion truth: what a user of the box sees, checked against the simulated
+//! chips and not against the bridge's own idea of where the axes are.
+//!
+//! The bridge is driven only through PoStep60 requests (the same entry point
+//! every bus uses) on chains of 1, 4 and 8 chips. An independent oracle in
+//! this file keeps, per axis, where the last accepted command says the axis
+//! must end up, in PoStep60 coordinates; after every sequence the chip's
+//! ABS_POS (22-bit, compared modulo 2²²) and the reported position must say
+//! exactly that. While an undisturbed move runs, the chip must never pass
+//! its target; while the axis streams, the chip must follow the profile.
+
+#![allow(clippy::needless_range_loop)] // axes are addressed by chain index
+
+use bridge_logic::bridge::Bridge;
+use bridge_logic::motion::axis::{logical_to_physical, physical_to_logical};
+use bridge_logic::motion::AxisState;
+use bridge_logic::postep::{Board, Query, Request, Settings, Value};
+use bridge_logic::powerstep::registers::{sign_extend_22, wrap_22, Register};
+use bridge_logic::powerstep::Command;
+use bridge_logic::sim::{Fault, SimChain};
+use host_tests::sim_bridge::{chip, chip_mut, new_bridge, TICK_US};
+
+const BOARD: Board = Board::REFERENCE;
+/// Microsteps per full step on the reference board's chips (1/128).
+const MICRO: f64 = 128.0;
+
+/// xorshift64*: deterministic, seedable, no dependency.
+struct Rng(u64);
+impl Rng {
+    fn next(&mut self) -> u64 {
+        self.0 ^= self.0 >> 12;
+        self.0 ^= self.0 << 25;
+        self.0 ^= self.0 >> 27;
+        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
+    }
+    fn below(&mut self, n: u64) -> u64 {
+        self.next() % n.max(1)
+    }
+    fn range(&mut self, lo: i64, hi: i64) -> i64 {
+        lo + self.below((hi - lo) as u64 + 1) as i64
+    }
+}
+
+/// Where the last accepted command says an axis ends up.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Expect {
+    /// Exactly on this PoStep60 position (logical steps of `mode`).
+    At { target: i64, mode: u8 },
+    /// Stopped wherever the stop caught it.
+    Held,
+}
+
+/// A move issued from rest and not retargeted: it must never pass its target.
+#[derive(Clone, Copy, Debug)]
+struct Clean {
+    /// Target in chip microsteps (wide).
+    target: i64,
+    /// +1 forward, −1 reverse.
+    dir: i64,
+}
+
+/// The chip's position unwrapped from its 22-bit ABS_POS tick by tick, in
+/// the PoStep60 frame (chip microsteps): re-based where the chip's log shows
+/// ResetPos (to 0) or an ABS_POS write (to the wide value nearest the
+/// position before the chip's last reset).
+#[derive(Clone, Copy, Debug, Default)]
+struct Wide {
+    pos: i64,
+    raw: u32,
+    seen: u64,
+    /// Position before an injected reset (the bridge re-bases near it).
+    anchor: Option<i64>,
+}
+
+/// `TRUTH_TRACE=axis,from_ms,to_ms` prints that axis tick by tick (a
+/// debugging aid for a failing sequence).
+fn trace_on(k: usize, now_ms: u64) -> bool {
+    let Ok(spec) = std::env::var("TRUTH_TRACE") else {
+        return false;
+    };
+    let v: Vec<u64> = spec.split(',').filter_map(|x| x.parse().ok()).collect();
+    matches!(v[..], [a, from, to] if a == k as u64 && (from..=to).contains(&now_ms))
+}
+
+/// The value ≡ `raw` (mod 2²²) nearest to `near`.
+fn nearest(raw: u32, near: i64) -> i64 {
+    near + i64::from(sign_extend_22(
+        raw.wrapping_sub(wrap_22(near as i32)) & 0x3F_FFFF,
+    ))
+}
+
+/// Bridge + simulated chips + virtual clock + the oracle.
+struct Truth {
+    bridge: Bridge<SimChain>,
+    now_ms: u64,
+    expect: Vec<Expect>,
+    mode: Vec<u8>,
+    clean: Vec<Option<Clean>>,
+    wide: Vec<Wide>,
+    /// Worst passing of a clean move's target, microsteps.
+    overshoot: i64,
+    /// Worst |profile − chip| while streaming, microsteps.
+    following: i64,
+    moves: u64,
+    lost: Vec<String>,
+}
+
+impl Truth {
+    fn new(n: usize, settings: Settings) -> Truth {
+        let mut t = Truth {
+            bridge: new_bridge(n, settings, BOARD),
+            now_ms: 0,
+            expect: vec![
+                Expect::At {
+                    target: 0,
+                    mode: settings.axes[0].step_mode
+                };
+                n
+            ],
+            mode: settings.axes.iter().take(n).map(|a| a.step_mode).collect(),
+            clean: vec![None; n],
+            wide: vec![Wide::default(); n],
+            overshoot: 0,
+            following: 0,
+            moves: 0,
+            lost: Vec::new(),
+        };
+        t.run(30);
+        t
+    }
+
+    fn axes(&self) -> usize {
+        self.bridge.axes()
+    }
+
+    fn run(&mut self, ms: u64) {
+        for _ in 0..ms {
+            self.now_ms += 1;
+            self.bridge.tick(self.now_ms);
+            self.bridge
+                .chain_mut()
+                .bus_mut()
+                .advance(u64::from(TICK_US) * 1000);
+            self.observe();
+        }
+    }
+
+    fn observe(&mut self) {
+        for k in 0..self.axes() {
+            let c = chip(&self.bridge, k);
+            let raw = wrap_22(c.abs_pos());
+            let w = &mut self.wide[k];
+            let new = (c.received_count() - w.seen).min(32) as usize;
+            let skip = c.received().count().saturating_sub(new);
+            let mut rebase = None;
+            for cmd in c.received().skip(skip) {
+                match cmd {
+                    Command::ResetPos => rebase = Some(0),
+                    Command::SetParam(Register::AbsPos, v) => {
+                        rebase = Some(nearest(*v, w.anchor.take().unwrap_or(w.pos)))
+                    }
+                    _ => {}
+                }
+            }
+            w.seen = c.received_count();
+            w.pos = match rebase {
+                Some(base) => nearest(raw, base),
+                None => nearest(raw, w.pos),
+            };
+            w.raw = raw;
+            let wide = w.pos;
+            // An injected reset the bridge has not re-based yet: nothing to follow.
+            let reset = w.anchor.is_some();
+            if let Some(c) = self.clean[k] {
+                let past = (wide - c.target) * c.dir;
+                self.overshoot = self.overshoot.max(past);
+            }
+            let axis = self.bridge.axis(k).expect("axis");
+            if trace_on(k, self.now_ms) {
+                let c = chip(&self.bridge, k);
+                println!(
+                    "t={} axis {k}: {:?} profile {} v={} chip {wide} speed {} error {} last {:?}",
+                    self.now_ms,
+                    axis.state(),
+                    axis.profile_physical(),
+                    axis.profile().velocity(),
+                    c.speed_reg(),
+                    axis.following_error(),
+                    c.received().last()
+                );
+            }
+            if axis.state() == AxisState::Streaming && !reset {
+                let e = axis.profile_physical() - wide;
+                self.following = self.following.max(e.abs());
+            }
+        }
+    }
+
+    fn settled(&self) -> bool {
+        (0..self.axes()).all(|k| self.bridge.axis(k).is_some_and(|a| a.is_settled()))
+    }
+
+    fn settle(&mut self, cap: u64) {
+        for _ in 0..cap {
+            if self.settled() {
+                return;
+            }
+            self.run(1);
+        }
+        let states: Vec<String> = (0..self.axes())
+            .map(|k| {
+                let a = self.bridge.axis(k).expect("axis");
+                format!(
+                    "axis {k}: {:?} {:?} v={} limits {:?} chip {}",
+                    a.state(),
+                    a.profile().mode(),
+                    a.profile().velocity(),
+                    a.profile().limits(),
+                    self.wide[k].pos
+                )
+            })
+            .collect();
+        panic!("not settled after {cap} ms: {states:?}");
+    }
+
+    fn position(&self, k: usize) -> i64 {
+        match self.bridge.query(k, Query::Position) {
+            Some(Value::I32(p)) => i64::from(p),
+            other => panic!("position of axis {k}: {other:?}"),
+        }
+    }
+
+    /// Send a request; update the oracle if it was accepted.
+    fn request(&mut self, k: usize, req: Request) -> bool {
+        let at_rest = self.bridge.axis(k).is_some_and(|a| a.is_settled());
+        let ok = self.bridge.request(k, req).is_ok();
+
+        if !ok {
+            return false;
+        }
+        match req {
+            Request::SetPosition(t) => {
+                self.moves += 1;
+                let mode = self.mode[k];
+                self.expect[k] = Expect::At {
+                    target: i64::from(t),
+                    mode,
+                };
+                let target = logical_to_physical(i64::from(t), mode, BOARD.step);
+                let delta = target - self.wide[k].pos;
+                self.clean[k] = (at_rest && delta != 0).then_some(Clean {
+                    target,
+                    dir: delta.signum(),
+                });
+            }
+            Request::SetZero => {
+                self.expect[k] = Expect::At {
+                    target: 0,
+                    mode: self.mode[k],
+                };
+                self.clean[k] = None;
+                // Acknowledged: every later read says 0 (SPEC.md).
+                let p = self.position(k);
+                if p != 0 {
+                    self.lost
+                        .push(format!("axis {k}: position {p} read right after Set zero"));
+                }
+            }
+            Request::Stop | Request::SoftStop => {
+                self.expect[k] = Expect::Held;
+                self.clean[k] = None;
+            }
+            Request::SetStepMode(m) => {
+                if m != self.mode[k] {
+                    self.expect[k] = Expect::Held;
+                    self.clean[k] = None;
+                }
+                self.mode[k] = m;
+            }
+            _ => {}
+        }
+        true
+    }
+
+    /// Every axis is where the oracle says; record what is not.
+    fn check(&mut self, seq: usize) {
+        for k in 0..self.axes() {
+            let Expect::At { target, mode } = self.expect[k] else {
+                continue;
+            };
+            let phys = logical_to_physical(target, mode, BOARD.step);
+            let abs = chip(&self.bridge, k).abs_pos();
+            let want = sign_extend_22(wrap_22(phys as i32));
+            let reported = self.position(k);
+            let want_reported = physical_to_logical(phys, mode, BOARD.step);
+            let wide = self.wide[k].pos;
+            if abs != want || wide != phys || reported != want_reported {
+                self.lost.push(format!(
+                    "sequence {seq}, axis {k}: target {target} (mode {mode}): chip ABS_POS {abs} \
+                     (want {want}), unwrapped {wide} (want {phys}), reported {reported} \
+                     (want {want_reported})"
+                ));
+                // Re-anchor the oracle so one loss is reported once.
+                self.expect[k] = Expect::Held;
+            }
+        }
+        for c in self.clean.iter_mut() {
+            *c = None;
+        }
+    }
+}
+
+/// A new max speed, acceleration or deceleration: the highest a PoStep60
+/// register holds (beyond the chip in coarse step modes), or a value from
+/// 100 full steps/s (500 full steps/s²) up, in the axis's step mode.
+fn limits_request(rng: &mut Rng, mode: u8) -> Request {
+    let scaled = |full: i64| (full << mode).min(65_535) as u16;
+    let high = rng.below(3) == 0;
+    match rng.below(3) {
+        0 => Request::SetMaxSpeed(if high {
+            65_535
+        } else {
+            scaled(rng.range(100, 8000))
+        }),
+        1 => Request::SetAcceleration(if high {
+            65_535
+        } else {
+            scaled(rng.range(500, 40_000))
+        }),
+        _ => Request::SetDeceleration(if high {
+            65_535
+        } else {
+            scaled(rng.range(500, 40_000))
+        }),
+    }
+}
+
+/// One random sequence on every axis: a move, disturbances while it runs,
+/// then settle and check.
+fn sequence(t: &mut Truth, rng: &mut Rng, seq: usize, counts: &mut [u64; 6]) {
+    let n = t.axes();
+    for k in 0..n {
+        let here = t.position(k);
+        let scale = 1i64 << t.mode[k];
+        let span = if rng.below(12) == 0 {
+            20_000 * scale // beyond 2²¹ chip microsteps
+        } else {
+            rng.range(10, 3000) * scale
+        };
+        let target = (here + rng.range(-span, span)).clamp(-(1 << 30), 1 << 30);
+        t.request(k, Request::SetPosition(target as i32));
+    }
+    t.run(rng.below(400));
+    for k in 0..n {
+        let scale = 1i64 << t.mode[k];
+        match rng.below(10) {
+            0 => {
+                // Limits raised or lowered mid-move.
+                counts[0] += 1;
+                for _ in 0..=rng.below(3) {
+                    let r = limits_request(rng, t.mode[k]);
+                    t.request(k, r);
+                }
+            }
+            1 => {
+                // Stop, then a new target 0..=3 ms later.
+                counts[1] += 1;
+                t.request(k, Request::Stop);
+                t.run(rng.below(4));
+                let here = t.position(k);
+                t.request(
+                    k,
+                    Request::SetPosition((here + rng.range(-500, 500) * scale) as i32),
+                );
+            }
+            2 => {
+                // Set zero, then a new target 0..=5 ms later.
+                counts[2] += 1;
+                t.request(k, Request::SetZero);
+                t.run(rng.below(6));
+                t.request(
+                    k,
+                    Request::SetPosition((rng.range(-800, 800) * scale) as i32),
+                );
+            }
+            3 => {
+                // Step mode change with high limits, then a move in the new unit.
+                counts[3] += 1;
+                t.request(k, Request::SetMaxSpeed(65_535));
+                t.request(k, Request::SetAcceleration(65_535));
+                t.request(k, Request::SetDeceleration(65_535));
+                let m = rng.below(9) as u8;
+                t.request(k, Request::SetStepMode(m));
+                t.run(rng.below(3));
+                let here = t.position(k);
+                t.request(
+                    k,
+                    Request::SetPosition((here + (rng.range(-400, 400) << m)) as i32),
+                );
+            }
+            4 => {
+                // Soft stop, then a new target.
+                t.request(k, Request::SoftStop);
+                t.run(rng.below(30));
+                let here = t.position(k);
+                t.request(
+                    k,
+                    Request::SetPosition((here + rng.range(-500, 500) * scale) as i32),
+                );
+            }
+            5 if rng.below(4) == 0 => {
+                // A chip reset: the axis stops and latches UVLO; reset faults.
+                counts[4] += 1;
+                t.expect[k] = Expect::Held;
+                t.clean[k] = None;
+                t.wide[k].anchor = Some(t.wide[k].pos);
+                chip_mut(&mut t.bridge, k).inject(Fault::PowerCycle);
+                t.run(rng.range(5, 20) as u64);
+                t.request(k, Request::ResetFaults);
+                let here = t.position(k);
+                t.request(
+                    k,
+                    Request::SetPosition((here + rng.range(-500, 500) * scale) as i32),
+                );
+            }
+            6 => {
+                // Retarget mid-move.
+                counts[5] += 1;
+                let here = t.position(k);
+                t.request(
+                    k,
+                    Request::SetPosition((here + rng.range(-3000, 3000) * scale) as i32),
+                );
+                t.clean[k] = None;
+            }
+            _ => {}
+        }
+    }
+    t.settle(400_000);
+    t.check(seq);
+    // Back to moderate limits now and then so moves stay short.
+    if rng.below(4) == 0 {
+        for k in 0..n {
+            let s = 1u32 << t.mode[k];
+            let v = (2000 * s).min(65_535) as u16;
+            t.request(k, Request::SetMaxSpeed(v));
+            t.request(k, Request::SetAcceleration((20_000 * s).min(65_535) as u16));
+            t.request(k, Request::SetDeceleration((20_000 * s).min(65_535) as u16));
+        }
+    }
+}
+
+fn random_run(n: usize, sequences: usize, seed: u64) -> Truth {
+    let mut settings = Settings::FACTORY;
+    for a in settings.axes.iter_mut() {
+        a.max_speed = 16_000;
+        a.acc = 60_000;
+        a.dec = 60_000;
+    }
+    let mut t = Truth::new(n, settings);
+    let mut rng = Rng(seed);
+    let mut counts = [0u64; 6];
+    for seq in 0..sequences {
+        sequence(&mut t, &mut rng, seq, &mut counts);
+    }
+    println!(
+        "{n} chips, {sequences} sequences, {} moves, {} ms: lost {}, max overshoot {:.3} full steps, \
+         max following error {:.3} full steps; limit changes {}, stop+move {}, zero+move {}, \
+         step-mode changes {}, chip resets {}, retargets {}",
+        t.moves,
+        t.now_ms,
+        t.lost.len(),
+        t.overshoot as f64 / MICRO,
+        t.following as f64 / MICRO,
+        counts[0],
+        counts[1],
+        counts[2],
+        counts[3],
+        counts[4],
+        counts[5],
+    );
+    for l in t.lost.iter().take(10) {
+        println!("  {l}");
+    }
+    t
+}
+
+/// Landing tolerance: the chip may pass a target by one microstep (the
+/// read-back resolution) before it lands on it exactly.
+const LANDING_TOLERANCE: i64 = 1;
+
+fn assert_truth(t: &Truth) {
+    assert!(
+        t.lost.is_empty(),
+        "{} accepted moves did not arrive: {:?}",
+        t.lost.len(),
+        &t.lost[..t.lost.len().min(5)]
+    );
+    assert!(
+        t.overshoot <= LANDING_TOLERANCE,
+        "a move passed its target by {} microsteps",
+        t.overshoot
+    );
+    assert!(
+        t.following <= 16,
+        "following error {} microsteps (> 1/8 full step)",
+        t.following
+    );
+}
+
+#[test]
+fn every_accepted_move_arrives_on_one_chip() {
+    let t = random_run(1, 400, 0x00DD_BA11_5EED);
+    assert_truth(&t);
+}
+
+#[test]
+fn every_accepted_move_arrives_on_four_chips() {
+    let t = random_run(4, 250, 0xC0FF_EE00_1234);
+    assert_truth(&t);
+}
+
+#[test]
+fn every_accepted_move_arrives_on_eight_chips() {
+    let t = random_run(8, 120, 0x0BAD_C0DE_7777);
+    assert_truth(&t);
+}
