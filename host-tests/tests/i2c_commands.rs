@@ -818,3 +818,86 @@ fn thermal_shutdown_stays_latched_after_cooling_until_reset() {
     b.run(4);
     assert_eq!(b.query(A0, 0x25, 1), [0]);
 }
+
+// ------------------------------------- motion truth on this bus (issue 8) ----
+
+#[test]
+fn a_target_right_after_stop_0x5f_arrives() {
+    let mut b = bench();
+    b.write(A0, &[0x50, 0x50, 0xC3, 0, 0]); // 50 000
+    b.run(300);
+    b.write(A0, &[0x5F]);
+    b.write(A0, &[0x50, 0x30, 0xF8, 0xFF, 0xFF]); // −2000
+    b.settle(60_000);
+    assert_eq!(le_i32(&b.query(A0, 0x40, 4)), -2000);
+    assert_eq!(b.chip(0).abs_pos(), phys(-2000));
+}
+
+#[test]
+fn set_zero_0x5e_reads_zero_at_once_and_the_next_target_is_in_the_new_coordinates() {
+    let mut b = bench();
+    b.write(A0, &[0x50, 0x50, 0xC3, 0, 0]);
+    b.run(300);
+    b.write(A0, &[0x5E]);
+    assert_eq!(b.query(A0, 0x40, 4), [0, 0, 0, 0]);
+    b.write(A0, &[0x50, 0xE8, 0x03, 0, 0]); // 1000
+    b.settle(60_000);
+    assert_eq!(le_i32(&b.query(A0, 0x40, 4)), 1000);
+    assert_eq!(b.chip(0).abs_pos(), phys(1000));
+}
+
+#[test]
+fn a_chip_reset_gets_the_configured_currents_back() {
+    let mut b = bench();
+    b.write(A0, &[0x30, 246, 3]); // 2.0 A full scale
+    b.run(50);
+    let run = b.chip(0).register(Register::KvalRun);
+    assert_ne!(run, 0x29);
+    b.chip_mut(0).inject(Fault::PowerCycle);
+    b.run(50);
+    for r in [
+        Register::KvalHold,
+        Register::KvalRun,
+        Register::KvalAcc,
+        Register::KvalDec,
+    ] {
+        assert_eq!(b.chip(0).register(r), run, "{r:?}");
+    }
+    assert_eq!(b.query(A0, 0x25, 1), [0x20], "UVLO latched");
+}
+
+#[test]
+fn raising_acceleration_mid_move_never_passes_the_target() {
+    let mut b = bench();
+    b.write(A0, &[0x50, 0xB8, 0x0B, 0, 0]); // 3000
+    b.run(400);
+    b.write(A0, &[0x52, 0xFF, 0xFF]);
+    b.write(A0, &[0x53, 0xFF, 0xFF]);
+    for _ in 0..20_000 {
+        b.run(1);
+        assert!(b.chip(0).abs_pos() <= phys(3000) + 1, "passed the target");
+    }
+    assert_eq!(b.chip(0).abs_pos(), phys(3000));
+}
+
+#[test]
+fn limits_beyond_the_chip_read_back_clamped() {
+    let mut b = bench();
+    b.write(A0, &[0x33, 0]); // full steps
+    b.write(A0, &[0x51, 0xFF, 0xFF]);
+    b.write(A0, &[0x52, 0xFF, 0xFF]);
+    assert_eq!(le_u16(&b.query(A0, 0x41, 2)), 12_481);
+    assert_eq!(le_u16(&b.query(A0, 0x42, 2)), 39_712);
+    assert_eq!(b.bridge.diag.limit_clamps, 2);
+}
+
+#[test]
+fn current_speed_0x44_reads_speeds_above_32767() {
+    let mut b = bench();
+    b.write(A0, &[0x33, 8]); // 1/256
+    b.write(A0, &[0x51, 0x50, 0xC3]); // 50 000
+    b.write(A0, &[0x52, 0xFF, 0xFF]);
+    b.write(A0, &[0x50, 0x80, 0x96, 0x98, 0x00]); // 10 000 000
+    b.run(1500);
+    assert_eq!(le_u16(&b.query(A0, 0x44, 2)), 50_000);
+}

@@ -615,3 +615,87 @@ fn nineteen_thousand_two_hundred_baud_without_parity_works_the_same() {
     b.settle(30_000);
     assert_eq!(b.position(1), 321);
 }
+
+// ------------------------------------- motion truth on this bus (issue 8) ----
+
+#[test]
+fn a_target_right_after_stop_0x5f_arrives() {
+    let mut b = line();
+    b.set_position(1, 50_000).unwrap();
+    b.run(300);
+    assert_eq!(b.write(1, 0x5F, 0), Ok(()));
+    b.set_position(1, -2_000).unwrap();
+    b.settle(60_000);
+    assert_eq!(b.position(1), -2_000);
+    assert_eq!(b.chip(0).abs_pos(), phys(-2_000));
+}
+
+#[test]
+fn set_zero_0x5e_reads_zero_at_once_and_the_next_target_is_in_the_new_coordinates() {
+    let mut b = line();
+    b.set_position(1, 50_000).unwrap();
+    b.run(300);
+    assert_eq!(b.write(1, 0x5E, 0), Ok(()));
+    assert_eq!(b.position(1), 0, "the read right after the acknowledgement");
+    b.set_position(1, 1_000).unwrap();
+    b.settle(60_000);
+    assert_eq!(b.position(1), 1_000);
+    assert_eq!(b.chip(0).abs_pos(), phys(1_000));
+}
+
+#[test]
+fn a_chip_reset_gets_the_configured_currents_back() {
+    let mut b = line();
+    // 2.0 A full scale: Tq 246, Ai 3 → registers [Ai, Tq] big-endian.
+    assert_eq!(b.write(1, 0x30, 0x03F6), Ok(()));
+    b.run(50);
+    let run = b.chip(0).register(Register::KvalRun);
+    assert_ne!(run, 0x29);
+    b.chip_mut(0).inject(Fault::PowerCycle);
+    b.run(50);
+    for r in [
+        Register::KvalHold,
+        Register::KvalRun,
+        Register::KvalAcc,
+        Register::KvalDec,
+    ] {
+        assert_eq!(b.chip(0).register(r), run, "{r:?}");
+    }
+    assert_eq!(b.read(1, 0x25, 1), Ok(vec![0x20]), "UVLO latched");
+}
+
+#[test]
+fn raising_acceleration_mid_move_never_passes_the_target() {
+    let mut b = line();
+    b.set_position(1, 3_000).unwrap();
+    b.run(400);
+    assert_eq!(b.write(1, 0x52, 0xFFFF), Ok(()));
+    assert_eq!(b.write(1, 0x53, 0xFFFF), Ok(()));
+    for _ in 0..20_000 {
+        b.run(1);
+        assert!(b.chip(0).abs_pos() <= phys(3_000) + 1, "passed the target");
+    }
+    assert_eq!(b.chip(0).abs_pos(), phys(3_000));
+}
+
+#[test]
+fn limits_beyond_the_chip_read_back_clamped() {
+    let mut b = line();
+    assert_eq!(b.write(1, 0x33, 0), Ok(())); // full steps
+    assert_eq!(b.write(1, 0x51, 0xFFFF), Ok(()));
+    assert_eq!(b.write(1, 0x52, 0xFFFF), Ok(()));
+    assert_eq!(b.read(1, 0x41, 1), Ok(vec![12_481]));
+    assert_eq!(b.read(1, 0x42, 1), Ok(vec![39_712]));
+    assert_eq!(b.bridge.diag.limit_clamps, 2);
+}
+
+#[test]
+fn current_speed_0x44_reads_speeds_above_32767() {
+    let mut b = line();
+    assert_eq!(b.write(1, 0x33, 8), Ok(())); // 1/256
+    assert_eq!(b.write(1, 0x51, 50_000), Ok(()));
+    assert_eq!(b.write(1, 0x52, 0xFFFF), Ok(()));
+    b.set_position(1, 10_000_000).unwrap();
+    b.run(1500);
+    assert_eq!(b.read(1, 0x44, 1), Ok(vec![50_000]));
+}

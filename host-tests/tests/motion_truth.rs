@@ -525,3 +525,269 @@ fn every_accepted_move_arrives_on_eight_chips() {
     let t = random_run(8, 120, 0x0BAD_C0DE_7777);
     assert_truth(&t);
 }
+
+// ------------------------------------------------ one defect, one test ----
+
+/// One chip at 1/16 (factory step mode), 1000 full steps/s, 1000 full steps/s².
+fn one_axis() -> Truth {
+    let mut settings = Settings::FACTORY;
+    settings.axes[0].max_speed = 16_000;
+    settings.axes[0].acc = 16_000;
+    settings.axes[0].dec = 16_000;
+    Truth::new(1, settings)
+}
+
+/// Run until the axis is in `state` (panics after `cap` ms).
+fn run_until_state(t: &mut Truth, state: AxisState, cap: u64) {
+    for _ in 0..cap {
+        if t.bridge.axis(0).expect("axis").state() == state {
+            return;
+        }
+        t.run(1);
+    }
+    panic!("axis never reached {state:?}");
+}
+
+fn assert_arrives(t: &mut Truth, what: &str) {
+    t.settle(60_000);
+    t.check(0);
+    assert!(t.lost.is_empty(), "{what}: {:?}", t.lost);
+}
+
+#[test]
+fn a_target_sent_in_any_phase_of_a_stop_arrives() {
+    for d in 0..=12 {
+        let mut t = one_axis();
+        t.request(0, Request::SetPosition(40_000));
+        t.run(300);
+        assert!(t.request(0, Request::Stop));
+        t.run(d);
+        assert!(t.request(0, Request::SetPosition(-7_000)));
+        assert_arrives(&mut t, &format!("target {d} ms after Stop"));
+    }
+}
+
+#[test]
+fn a_target_sent_in_any_phase_of_a_set_zero_arrives_in_the_new_coordinates() {
+    for d in 0..=12 {
+        let mut t = one_axis();
+        t.request(0, Request::SetPosition(40_000));
+        t.run(300);
+        assert!(t.request(0, Request::SetZero));
+        assert_eq!(t.position(0), 0, "read right after Set zero");
+        t.run(d);
+        assert_eq!(t.position(0), 0, "{d} ms after Set zero");
+        assert!(t.request(0, Request::SetPosition(5_000)));
+        assert_arrives(&mut t, &format!("target {d} ms after Set zero"));
+    }
+}
+
+#[test]
+fn a_target_sent_in_any_phase_of_a_soft_stop_arrives() {
+    // 1000 full steps/s at 1000 full steps/s² brake in 1 s.
+    for d in (0..=1050).step_by(25) {
+        let mut t = one_axis();
+        t.request(0, Request::SetPosition(60_000));
+        t.run(1500);
+        assert!(t.request(0, Request::SoftStop));
+        t.run(d);
+        assert!(t.request(0, Request::SetPosition(20_000)));
+        assert_arrives(&mut t, &format!("target {d} ms after soft stop"));
+    }
+}
+
+#[test]
+fn a_target_sent_in_any_phase_of_a_landing_arrives() {
+    for d in 0..=8 {
+        let mut t = one_axis();
+        t.request(0, Request::SetPosition(3_001));
+        run_until_state(&mut t, AxisState::Stopping, 10_000);
+        t.run(d);
+        assert!(t.request(0, Request::SetPosition(-2_999)));
+        assert_arrives(&mut t, &format!("target {d} ms after the end-of-move stop"));
+    }
+}
+
+#[test]
+fn stop_then_set_zero_then_a_target_all_take_effect_in_order() {
+    let mut t = one_axis();
+    t.request(0, Request::SetPosition(40_000));
+    t.run(300);
+    t.request(0, Request::Stop);
+    t.request(0, Request::SetZero);
+    t.request(0, Request::SetPosition(1_000));
+    t.run(1);
+    t.request(0, Request::Stop);
+    assert_eq!(t.position(0), 0, "Stop does not undo the zero");
+    t.request(0, Request::SetPosition(-1_000));
+    assert_arrives(&mut t, "zero kept through a later Stop");
+}
+
+/// Every register the bridge configures, as the chip holds it.
+fn configured_registers(t: &Truth) -> Vec<(Register, u32)> {
+    let c = chip(&t.bridge, 0);
+    [
+        Register::StepMode,
+        Register::Config,
+        Register::KvalHold,
+        Register::KvalRun,
+        Register::KvalAcc,
+        Register::KvalDec,
+        Register::MaxSpeed,
+        Register::Acc,
+        Register::Dec,
+        Register::AbsPos,
+    ]
+    .into_iter()
+    .map(|r| (r, c.register(r)))
+    .collect()
+}
+
+#[test]
+fn after_a_chip_reset_every_configured_register_is_written_again() {
+    let mut t = one_axis();
+    t.request(
+        0,
+        Request::SetFullScaleCurrent(bridge_logic::postep::Current::from_milliamps(2500)),
+    );
+    t.request(0, Request::SetPosition(12_345));
+    t.settle(30_000);
+    t.run(20);
+    let before = configured_registers(&t);
+    assert_ne!(
+        before[2].1, 0x29,
+        "a configured hold current, not the reset value"
+    );
+    chip_mut(&mut t.bridge, 0).inject(Fault::PowerCycle);
+    assert_eq!(chip(&t.bridge, 0).register(Register::KvalRun), 0x29);
+    t.run(30);
+    assert!(t.bridge.axis(0).expect("axis").is_configured());
+    assert_eq!(configured_registers(&t), before);
+    // Visible: UVLO latched in the faults, counted in the diagnostics.
+    assert_eq!(
+        t.bridge.query(0, Query::Faults),
+        Some(Value::U8(bridge_logic::postep::device::fault::UVLO))
+    );
+    assert_eq!(t.bridge.diag.chip_resets, 1);
+}
+
+#[test]
+fn a_reset_in_the_middle_of_the_setup_runs_the_whole_setup_again() {
+    let mut t = one_axis();
+    t.request(0, Request::SetPosition(2_000));
+    t.settle(30_000);
+    t.run(20);
+    let before = configured_registers(&t);
+    chip_mut(&mut t.bridge, 0).inject(Fault::PowerCycle);
+    t.run(4); // detected, setup under way
+    assert!(!t.bridge.axis(0).expect("axis").is_configured());
+    chip_mut(&mut t.bridge, 0).inject(Fault::PowerCycle);
+    t.run(40);
+    assert_eq!(configured_registers(&t), before);
+    assert_eq!(t.bridge.diag.chip_resets, 2);
+}
+
+#[test]
+fn raising_acceleration_and_deceleration_mid_move_never_passes_the_target() {
+    for at in [100, 300, 500, 700, 900] {
+        let mut t = one_axis();
+        t.request(0, Request::SetPosition(8_000)); // 500 full steps
+        t.run(at);
+        // Four times the ramps the chip was programmed with at the start.
+        t.request(0, Request::SetAcceleration(65_535));
+        t.request(0, Request::SetDeceleration(65_535));
+        t.clean[0] = Some(Clean {
+            target: 8_000 * 8,
+            dir: 1,
+        });
+        assert_arrives(&mut t, "limits raised mid-move");
+        assert!(
+            t.overshoot <= LANDING_TOLERANCE,
+            "passed by {} microsteps",
+            t.overshoot
+        );
+    }
+}
+
+#[test]
+fn higher_ramps_take_effect_at_the_next_start() {
+    let mut t = one_axis();
+    t.request(0, Request::SetPosition(8_000));
+    t.run(100);
+    t.request(0, Request::SetDeceleration(60_000));
+    let l = t.bridge.axis(0).expect("axis").profile().limits();
+    assert!(
+        (16_000..17_000).contains(&l.dec),
+        "the chip's DEC still rules this move: {}",
+        l.dec
+    );
+    t.settle(30_000);
+    t.request(0, Request::SetPosition(0));
+    t.run(5);
+    let l = t.bridge.axis(0).expect("axis").profile().limits();
+    assert_eq!(l.dec, 60_000, "rewritten at the start from rest");
+}
+
+#[test]
+fn limits_beyond_the_chip_are_clamped_visibly_and_counted() {
+    let mut t = one_axis();
+    // 16 000 full steps/s in full steps: beyond MAX_SPEED's 15 610.
+    t.request(0, Request::SetStepMode(0));
+    assert_eq!(t.bridge.query(0, Query::MaxSpeed), Some(Value::U16(12_481)));
+    assert_eq!(t.bridge.diag.limit_clamps, 1);
+    // 65 535 full steps/s and steps/s²: beyond MAX_SPEED and ACC/DEC.
+    for r in [
+        Request::SetMaxSpeed(65_535),
+        Request::SetAcceleration(65_535),
+        Request::SetDeceleration(65_535),
+    ] {
+        assert!(t.request(0, r));
+    }
+    assert_eq!(t.bridge.query(0, Query::MaxSpeed), Some(Value::U16(12_481)));
+    assert_eq!(
+        t.bridge.query(0, Query::Acceleration),
+        Some(Value::U16(39_712))
+    );
+    assert_eq!(
+        t.bridge.query(0, Query::Deceleration),
+        Some(Value::U16(39_712))
+    );
+    assert_eq!(t.bridge.diag.limit_clamps, 4);
+    // The same numbers at 1/256 are 256 full steps/s: nothing to clamp;
+    // back to full steps they are clamped again.
+    t.request(0, Request::SetStepMode(8));
+    t.request(0, Request::SetMaxSpeed(65_535));
+    assert_eq!(t.bridge.query(0, Query::MaxSpeed), Some(Value::U16(65_535)));
+    t.request(0, Request::SetStepMode(0));
+    assert_eq!(t.bridge.query(0, Query::MaxSpeed), Some(Value::U16(12_481)));
+    assert_eq!(t.bridge.diag.limit_clamps, 5);
+    // A move at the clamped limits follows within 1/8 full step.
+    t.request(0, Request::SetPosition(30_000));
+    assert_arrives(&mut t, "move at the clamped limits");
+    assert!(
+        t.following <= 16,
+        "following error {} microsteps",
+        t.following
+    );
+}
+
+#[test]
+fn current_speed_reads_every_speed_up_to_65535() {
+    let mut t = one_axis();
+    t.request(0, Request::SetStepMode(8)); // 60 000 steps/s = 234 full steps/s
+    t.request(0, Request::SetMaxSpeed(60_000));
+    t.request(0, Request::SetAcceleration(65_535));
+    t.request(0, Request::SetPosition(2_000_000));
+    t.run(1500);
+    assert_eq!(
+        t.bridge.query(0, Query::CurrentSpeed),
+        Some(Value::U16(60_000))
+    );
+    // Back: 3.75 s braking at 16 000 steps/s², 0.9 s up to speed again.
+    t.request(0, Request::SetPosition(-2_000_000));
+    t.run(5000);
+    assert_eq!(
+        t.bridge.query(0, Query::CurrentSpeed),
+        Some(Value::U16(60_000))
+    );
+}
