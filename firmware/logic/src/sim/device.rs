@@ -46,6 +46,31 @@
 //! * Never panics on any input: all arithmetic on inputs is checked,
 //!   saturating or provably in range; no indexing by input values.
 //!
+//! # Strictness: what a real chip refuses or does, rule by rule
+//!
+//! The bridge is tested against this model, so the model must not be more
+//! lenient than the datasheet. Each rule below is held by the named test (in
+//! this file's `tests`), which fails against a model that skips the rule.
+//!
+//! | rule (facts doc / AN4290) | held by |
+//! |---|---|
+//! | GoTo, GoTo_DIR, GoHome, GoMark refused (CMD_ERROR) while BUSY | `goto_family_while_busy_is_refused`, `move_is_refused_while_a_run_is_still_accelerating` |
+//! | Move refused unless stopped (also at constant speed) | `move_while_moving_is_refused`, `move_while_running_at_constant_speed_is_refused` |
+//! | StepClock refused unless stopped | `step_clock_while_moving_is_refused` |
+//! | WS registers (ABS_POS, EL_POS, ACC, DEC, MIN_SPEED, ALARM_EN) refused unless stopped, value unchanged | `ws_register_written_while_moving_is_refused_after_the_last_argument` |
+//! | WH registers (STEP_MODE, CONFIG, GATECFG, BEMF) refused unless in HiZ | `wh_register_written_while_not_in_hiz_is_refused` |
+//! | Read-only and non-existent registers refused at the command byte | `set_param_to_a_read_only_register_is_refused_at_the_command_byte`, `set_param_to_a_non_existent_register_is_refused_at_the_command_byte` |
+//! | Unknown command bytes refused, no arguments consumed | `unknown_byte_sets_cmd_error_and_consumes_no_arguments` |
+//! | ResetDevice refused outside HiZ | `reset_device_outside_hiz_is_refused` |
+//! | Run speed clamped to [MIN_SPEED, MAX_SPEED] | `run_speed_is_clamped_to_min_and_max_speed`, `a_faster_run_accelerates_with_acc_up_to_max_speed_only` |
+//! | Speed changes ramp with the chip's own ACC (up) and DEC (down), never at once | `run_reaches_speed_after_the_analytic_acceleration_time`, `a_slower_run_decelerates_with_dec_not_at_once`, `soft_stop_decelerates_with_dec`, `run_in_the_opposite_direction_decelerates_then_reverses`, `lowering_max_speed_while_running_decelerates_to_it` |
+//! | Positioning never passes its target | `go_to_and_move_land_exactly_on_random_targets`, `positioning_arrives_slowly_and_brakes_with_dec` |
+//! | Every register at its reset value after power-up and reset (currents included), UVLO asserted | `power_up_registers_hold_their_table_reset_values`, `power_cycle_restores_every_register_including_the_currents`, `power_cycle_restores_reset_registers_and_asserts_uvlo` |
+//! | Latched flags (UVLO, OCD, STALL, SW_EVN, CMD_ERROR) stay until GetStatus; GetParam(STATUS) clears nothing | `get_status_clears_latched_flags_but_get_param_status_does_not`, `uvlo_reads_asserted_after_power_up_until_the_first_get_status`, `latched_thermal_status_stays_while_the_condition_persists` |
+//! | Overcurrent with OC_SD and thermal shutdown switch the bridges off and refuse motion | `overcurrent_with_oc_sd_goes_hiz_and_locks_the_bridges_until_get_status`, `thermal_shutdown_puts_bridges_in_hiz_until_the_condition_clears` |
+//! | ABS_POS is 22 bits and wraps | `abs_pos_wraps_at_22_bits` |
+//! | A half-sent command swallows the next bytes (no timeout) | `a_half_received_command_swallows_the_next_bytes` |
+//!
 //! # Modelling choices (UNCONFIRMED or unspecified behaviour)
 //!
 //! 1. **ResetDevice outside HiZ is refused** with CMD_ERROR (single ST-forum
@@ -2554,5 +2579,66 @@ mod tests {
             let s = get_status(&mut d);
             assert!(s.hiz() && !s.looks_dead());
         }
+    }
+
+    #[test]
+    fn a_slower_run_decelerates_with_dec_not_at_once() {
+        let mut d = ready();
+        cmd(&mut d, Command::SetParam(Register::MaxSpeed, 0x3FF));
+        cmd(&mut d, Command::Run(Forward, 60_000));
+        d.advance(2000 * MS);
+        assert_eq!(d.speed_reg(), 60_000);
+        cmd(&mut d, Command::Run(Forward, 20_000));
+        d.advance(1000 * TICK);
+        // DEC (0x08A) per tick, never a jump to the new speed.
+        assert_eq!(d.speed_internal(), (60_000u64 << 12) - 1000 * 0x08A);
+        assert!(d.is_busy());
+        assert_eq!(d.status().motor_status(), MotorStatus::Decelerating);
+    }
+
+    #[test]
+    fn a_faster_run_accelerates_with_acc_up_to_max_speed_only() {
+        let mut d = ready();
+        cmd(&mut d, Command::SetParam(Register::Acc, 0x20));
+        cmd(&mut d, Command::Run(Reverse, 0xF_FFFF));
+        d.advance(100 * TICK);
+        assert_eq!(d.speed_internal(), 100 * 0x20);
+        d.advance(10_000 * MS);
+        assert_eq!(d.speed_internal(), 0x041 << 22, "clamped to MAX_SPEED");
+    }
+
+    #[test]
+    fn power_cycle_restores_every_register_including_the_currents() {
+        let mut d = ready();
+        for (r, v) in [
+            (Register::KvalHold, 0x10),
+            (Register::KvalRun, 0x80),
+            (Register::KvalAcc, 0x80),
+            (Register::KvalDec, 0x80),
+            (Register::StepMode, 0x04),
+            (Register::Config, 0x2C98),
+            (Register::OcdTh, 0x1F),
+            (Register::MaxSpeed, 0x200),
+            (Register::Dec, 0x300),
+        ] {
+            d.set_register_raw(r, v);
+            assert_eq!(d.register(r), v);
+        }
+        d.inject(Fault::PowerCycle);
+        for info in REGISTERS.iter().filter(|i| i.register != Register::Status) {
+            assert_eq!(d.register(info.register), info.reset, "{}", info.voltage_mode_name);
+        }
+    }
+
+    #[test]
+    fn move_is_refused_while_a_run_is_still_accelerating() {
+        let mut d = ready();
+        cmd(&mut d, Command::Run(Forward, 20_000));
+        d.advance(MS);
+        assert!(d.is_busy());
+        let before = d.command_errors();
+        cmd(&mut d, Command::Move(Forward, 100));
+        cmd(&mut d, Command::GoTo(100));
+        assert_eq!(d.command_errors(), before + 2);
     }
 }
