@@ -9,7 +9,7 @@
 //! for a tick: a count of milliseconds (mod 20).
 #![no_main]
 
-use bridge_logic::postep::Settings;
+use bridge_logic::postep60::Settings;
 use host_tests::i2c_master::Bench;
 use libfuzzer_sys::fuzz_target;
 

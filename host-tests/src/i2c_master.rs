@@ -3,7 +3,7 @@
 //! virtual clock that ticks the bridge and the simulated chips together.
 
 use bridge_logic::bridge::Bridge;
-use bridge_logic::postep::{Board, Settings};
+use bridge_logic::postep60::{Board, Settings};
 use bridge_logic::sim::SimChain;
 use bridge_logic::transport::i2c::{I2cSlave, Which};
 

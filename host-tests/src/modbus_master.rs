@@ -8,8 +8,8 @@
 //! `crc` crate the server uses, so the two check each other.
 
 use bridge_logic::bridge::Bridge;
-use bridge_logic::postep::settings::Serial;
-use bridge_logic::postep::{Board, Settings};
+use bridge_logic::postep60::settings::Serial;
+use bridge_logic::postep60::{Board, Settings};
 use bridge_logic::sim::SimChain;
 use bridge_logic::transport::modbus::{RtuServer, Timing};
 
@@ -254,7 +254,7 @@ impl Line {
 // was executed.
 // ------------------------------------------------------------------------
 
-use bridge_logic::postep::{CommandError, Effect, Query, Request, Value};
+use bridge_logic::postep60::{CommandError, Effect, Query, Request, Value};
 use bridge_logic::transport::modbus::ModbusTarget;
 
 /// The framing rules restated for a stream whose frames are polled at every
@@ -374,9 +374,6 @@ impl<T: ModbusTarget> ModbusTarget for Recording<'_, T> {
     }
     fn query(&self, axis: usize, q: Query) -> Option<Value> {
         self.inner.query(axis, q)
-    }
-    fn after_reply(&mut self) {
-        self.inner.after_reply()
     }
 }
 

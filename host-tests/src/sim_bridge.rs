@@ -1,8 +1,8 @@
 //! What every bus-master harness needs from a bridge on simulated chips.
 
 use bridge_logic::bridge::{Bridge, SettingsSource};
-use bridge_logic::postep::analog::AnalogSample;
-use bridge_logic::postep::{Board, Settings};
+use bridge_logic::postep60::analog::AnalogSample;
+use bridge_logic::postep60::{Board, Settings};
 use bridge_logic::sim::{Powerstep01, SimChain};
 
 /// The harnesses' control period.

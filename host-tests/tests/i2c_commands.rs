@@ -3,9 +3,9 @@
 //! what the motors do. Byte vectors follow the manual's formulas.
 
 use bridge_logic::motion::axis::logical_to_physical;
-use bridge_logic::postep::analog::AnalogSample;
-use bridge_logic::postep::settings::{DriverMode, IMAGE_LEN};
-use bridge_logic::postep::{Board, Inputs, Settings};
+use bridge_logic::postep60::analog::AnalogSample;
+use bridge_logic::postep60::settings::{DriverMode, IMAGE_LEN};
+use bridge_logic::postep60::{Board, Inputs, Settings};
 use bridge_logic::powerstep::registers::Register;
 use bridge_logic::powerstep::Direction;
 use bridge_logic::powerstep::StepSel;
@@ -639,7 +639,7 @@ fn above_the_temperature_limit_currents_drop_to_the_overheat_current() {
     assert_eq!(b.chip(0).register(Register::KvalRun), 11);
 }
 
-fn settings_with(f: impl Fn(&mut bridge_logic::postep::AxisSettings)) -> Settings {
+fn settings_with(f: impl Fn(&mut bridge_logic::postep60::AxisSettings)) -> Settings {
     let mut s = Settings::FACTORY;
     for a in s.axes.iter_mut() {
         f(a);

@@ -1,7 +1,7 @@
 //! Bad input on the I2C bus: random transactions never panic and never move
 //! a motor unless they contain a valid motion command.
 
-use bridge_logic::postep::Settings;
+use bridge_logic::postep60::Settings;
 use host_tests::i2c_master::Bench;
 use proptest::prelude::*;
 

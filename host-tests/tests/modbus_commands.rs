@@ -5,8 +5,8 @@
 //! Factory settings: axis 0 answers id 1, axis 1 id 2, 9600 baud even parity.
 
 use bridge_logic::motion::axis::logical_to_physical;
-use bridge_logic::postep::settings::IMAGE_LEN;
-use bridge_logic::postep::{Board, Settings};
+use bridge_logic::postep60::settings::IMAGE_LEN;
+use bridge_logic::postep60::{Board, Settings};
 use bridge_logic::powerstep::registers::Register;
 use bridge_logic::powerstep::Direction;
 use bridge_logic::powerstep::StepSel;
@@ -607,7 +607,7 @@ fn two_axes_at_ids_base_and_base_plus_1_move_independently() {
 #[test]
 fn nineteen_thousand_two_hundred_baud_without_parity_works_the_same() {
     let mut s = Settings::FACTORY;
-    s.serial = bridge_logic::postep::settings::Serial::from_code(5).unwrap();
+    s.serial = bridge_logic::postep60::settings::Serial::from_code(5).unwrap();
     let mut b = Line::new(1, s);
     assert_eq!(b.char_us, 573);
     assert_eq!(b.timing.t35_us, 2006);

@@ -9,7 +9,7 @@
 //! before the quantity). Exceptions come back as function | 0x80 (SPEC.md).
 //! Another server on the bus is id 18 (0x12), libmodbus's INVALID_SERVER_ID.
 
-use bridge_logic::postep::Settings;
+use bridge_logic::postep60::Settings;
 use bridge_logic::sim::Fault;
 use host_tests::modbus_master::{adu, Line};
 

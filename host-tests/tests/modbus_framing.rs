@@ -9,7 +9,7 @@
 //! The cases pymodbus marks "we should not respond" (a valid frame wrapped in
 //! garbage) get no response here.
 
-use bridge_logic::postep::Settings;
+use bridge_logic::postep60::Settings;
 use host_tests::modbus_master::{adu, Line};
 
 /// pymodbus `good_frame`: id 2, read 125 holding registers at address 1.
@@ -302,7 +302,7 @@ fn joining_a_busy_line_mid_frame_resynchronises_at_the_next_silence() {
 #[test]
 fn nineteen_thousand_two_hundred_baud_uses_its_own_t15_and_t35() {
     let mut s = Settings::FACTORY;
-    s.serial = bridge_logic::postep::settings::Serial::from_code(4).unwrap(); // 19200 odd
+    s.serial = bridge_logic::postep60::settings::Serial::from_code(4).unwrap(); // 19200 odd
     let mut b = Line::new(2, s);
     assert_eq!((b.timing.t15_us, b.timing.t35_us), (860, 2006));
     // a 1 ms silence inside a frame is tolerated at 9600 but not at 19200

@@ -14,7 +14,7 @@
 use bridge_logic::bridge::Bridge;
 use bridge_logic::motion::axis::{logical_to_physical, physical_to_logical};
 use bridge_logic::motion::AxisState;
-use bridge_logic::postep::{Board, Query, Request, Settings, Value};
+use bridge_logic::postep60::{Board, Query, Request, Settings, Value};
 use bridge_logic::powerstep::registers::{sign_extend_22, wrap_22, Register};
 use bridge_logic::powerstep::Command;
 use bridge_logic::sim::{Fault, SimChain};
@@ -648,7 +648,7 @@ fn after_a_chip_reset_every_configured_register_is_written_again() {
     let mut t = one_axis();
     t.request(
         0,
-        Request::SetFullScaleCurrent(bridge_logic::postep::Current::from_milliamps(2500)),
+        Request::SetFullScaleCurrent(bridge_logic::postep60::Current::from_milliamps(2500)),
     );
     t.request(0, Request::SetPosition(12_345));
     t.settle(30_000);
@@ -666,7 +666,7 @@ fn after_a_chip_reset_every_configured_register_is_written_again() {
     // Visible: UVLO latched in the faults, counted in the diagnostics.
     assert_eq!(
         t.bridge.query(0, Query::Faults),
-        Some(Value::U8(bridge_logic::postep::device::fault::UVLO))
+        Some(Value::U8(bridge_logic::postep60::device::fault::UVLO))
     );
     assert_eq!(t.bridge.diag.chip_resets, 1);
 }

@@ -17,9 +17,16 @@
 pub mod bridge;
 pub mod motion;
 pub mod persist;
-pub mod postep;
+pub mod postep60;
 pub mod powerstep;
 pub mod transport;
 
-#[cfg(feature = "sim")]
+// The simulator is built for this crate's own tests and, with the `sim`
+// feature, for host-tests and the QEMU image.
+#[cfg(any(test, feature = "sim"))]
 pub mod sim;
+
+/// The layer's name before it became [`postep60`]; kept only until the
+/// firmware crate's platform split lands (it still imports `postep`).
+#[doc(hidden)]
+pub use postep60 as postep;

@@ -738,7 +738,7 @@ impl<F: NorFlash> Store<F> {
     }
 }
 
-#[cfg(all(test, feature = "sim"))]
+#[cfg(test)]
 #[allow(
     clippy::indexing_slicing,
     clippy::arithmetic_side_effects,

@@ -15,7 +15,7 @@ use core::convert::Infallible;
 
 use heapless::Vec;
 
-use super::device::Powerstep01;
+use super::powerstep01::Powerstep01;
 use crate::powerstep::chain::{ChainBus, MAX_DEVICES};
 
 /// Bytes of the last window kept for [`SimChain::last_window`].
@@ -159,7 +159,7 @@ mod tests {
     use crate::powerstep::commands::{Command, Direction};
     use crate::powerstep::registers::Register;
     use crate::powerstep::{Batch, Chain, ChainError};
-    use crate::sim::device::Fault;
+    use crate::sim::powerstep01::Fault;
 
     fn window(c: &mut SimChain, tx: &[u8]) -> Vec<u8> {
         let mut rx = vec![0xAA; tx.len()];

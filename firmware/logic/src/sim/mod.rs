@@ -1,6 +1,6 @@
 //! Byte-accurate powerSTEP01 simulator (feature `sim`), `no_std`, no allocation.
 //!
-//! * [`device`] — one chip: SPI parser and responses, registers, STATUS
+//! * [`powerstep01`] — one chip: SPI parser and responses, registers, STATUS
 //!   flags, the motion engine integrated exactly in chip units, SW input and
 //!   fault injection. Its module docs list what is guaranteed and which
 //!   behaviours are modelling choices.
@@ -10,9 +10,9 @@
 //! * [`flash`] — NOR flash with power-cut injection, for the settings store.
 
 pub mod chain;
-pub mod device;
 pub mod flash;
+pub mod powerstep01;
 
 pub use chain::SimChain;
-pub use device::{Fault, Powerstep01, TICK_NS};
 pub use flash::{SimFlash, SimFlashError};
+pub use powerstep01::{Fault, Powerstep01, TICK_NS};

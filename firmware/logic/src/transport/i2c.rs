@@ -163,7 +163,7 @@ impl I2cSlave {
 // The PoStep60 I2C command set (manual §8.3), little-endian on the wire.
 // ------------------------------------------------------------------------
 
-use crate::postep::{Current, Query, Request, Value};
+use crate::postep60::{Current, Query, Request, Value};
 
 /// Extension: select which axis the following commands on this address go to
 /// (BYTE0 = axis index). Reading after it returns [selected axis, axis count].

@@ -18,8 +18,8 @@
 //!   Commands the manual gives FC 0x06 are also accepted by FC 0x10 with a
 //!   quantity of 1 (many PLCs only write with FC 0x10).
 
-use crate::postep::device::CommandError;
-use crate::postep::{Current, Query, Request, Value};
+use crate::postep60::device::CommandError;
+use crate::postep60::{Current, Query, Request, Value};
 
 /// Modbus exception codes (Modbus application protocol V1.1b3, §7).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]

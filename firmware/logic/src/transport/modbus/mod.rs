@@ -66,22 +66,21 @@
 //!   than 0xDA/0x0F) get the normal response, as on a PoStep60, and are
 //!   counted in [`Stats::ignored_values`].
 //! * 0x04 Set address: the response always carries the id the request was
-//!   sent to (the old one), then [`ModbusTarget::after_reply`] runs.
+//!   sent to (the old one); the target may move its ids at once.
 //!   0x60 System reset and 0x3F Write settings: the target defers them
 //!   (the bridge's `take_reset` / `take_save`), so the reply goes out first.
 //! * Never panics, whatever the bytes and timestamps: every index is checked
 //!   and all time arithmetic saturates.
 
 pub mod map;
-mod target;
 
 pub use map::Exception;
 
 use crc::{Crc, CRC_16_MODBUS};
 use heapless::Vec;
 
-use crate::postep::settings::{Parity, Serial};
-use crate::postep::{CommandError, Effect, Query, Request, Value};
+use crate::postep60::settings::{Parity, Serial};
+use crate::postep60::{CommandError, Effect, Query, Request, Value};
 
 /// Largest RTU ADU (server id + PDU + CRC).
 pub const ADU_MAX: usize = 256;
@@ -201,11 +200,6 @@ pub trait ModbusTarget {
     fn axes(&self) -> usize;
     fn request(&mut self, axis: usize, req: Request) -> Result<Effect, CommandError>;
     fn query(&self, axis: usize, q: Query) -> Option<Value>;
-    /// Called once the response has been produced (or for broadcasts, after
-    /// executing): apply deferred effects (address change). Called once for
-    /// every intact frame addressed to us (unicast or broadcast), whatever
-    /// the outcome.
-    fn after_reply(&mut self);
 }
 
 /// Why a frame in progress will be dropped.
@@ -412,13 +406,9 @@ fn process(
         0 => {
             bump(&mut stats.broadcasts);
             broadcast(pdu, stats, target);
-            target.after_reply();
         }
         1..=ID_MAX => match target.axis_for_id(id) {
-            Some(axis) => {
-                respond(id, axis, pdu, tx, stats, target);
-                target.after_reply();
-            }
+            Some(axis) => respond(id, axis, pdu, tx, stats, target),
             None => bump(&mut stats.other_ids),
         },
         _ => bump(&mut stats.other_ids),

@@ -26,11 +26,13 @@
 use heapless::Vec;
 
 use crate::motion::{Axis, AxisConfig, AxisGroup};
-use crate::postep::analog::{self, AnalogSample};
-use crate::postep::settings::{Serial, IMAGE_LEN};
-use crate::postep::{Board, CommandError, Device, Effect, Inputs, Query, Request, Settings, Value};
+use crate::postep60::analog::{self, AnalogSample};
+use crate::postep60::settings::{Serial, IMAGE_LEN};
+use crate::postep60::{
+    Board, CommandError, Device, Effect, Inputs, Query, Request, Settings, Value,
+};
 use crate::powerstep::chain::{Chain, ChainBus, ChainError, MAX_DEVICES};
-use crate::transport::i2c::{self, I2cCommand, I2cError, I2cTarget, Which, Write, RESPONSE_MAX};
+use crate::transport::i2c::I2cCommand;
 
 /// Where the settings in use came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -97,6 +99,9 @@ mod tests {
     }
 }
 
+mod i2c;
+mod modbus;
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct Port {
     /// Axis the commands on this address go to.
@@ -125,8 +130,6 @@ pub fn boot_settings<E>(
 /// Failed control ticks in a row after which the chain counts as dead.
 pub const CHAIN_DEAD_TICKS: u32 = 10;
 
-/// Highest Modbus server id.
-pub const MODBUS_ID_MAX: u8 = 247;
 /// Highest I2C address a PoStep60 accepts.
 pub const I2C_ADDRESS_MAX: u8 = 127;
 
@@ -455,7 +458,7 @@ impl<B: ChainBus> Bridge<B> {
             .filter(|b| *b >= 1)
             .ok_or(CommandError::BadAddress)?;
         let last = usize::from(base) + n.saturating_sub(1);
-        if last > usize::from(MODBUS_ID_MAX) {
+        if last > usize::from(crate::transport::modbus::ID_MAX) {
             return Err(CommandError::BadAddress);
         }
         if base != self.base_address {
@@ -463,77 +466,5 @@ impl<B: ChainBus> Bridge<B> {
             self.addresses_changed = true;
         }
         Ok(())
-    }
-
-    fn port(which: Which) -> usize {
-        match which {
-            Which::Primary => 0,
-            Which::Secondary => 1,
-        }
-    }
-}
-
-impl<B: ChainBus> I2cTarget for Bridge<B> {
-    fn i2c_write(&mut self, w: Write<'_>) {
-        let p = Self::port(w.which);
-        let decoded = i2c::decode(w.bytes);
-        let axis = self
-            .ports
-            .get(p)
-            .map(|port| usize::from(port.axis))
-            .unwrap_or(0);
-        let last = match decoded {
-            Err(I2cError::Unknown(_)) => {
-                self.diag.i2c_unknown = self.diag.i2c_unknown.saturating_add(1);
-                None
-            }
-            Err(I2cError::Short { .. }) => {
-                self.diag.i2c_short = self.diag.i2c_short.saturating_add(1);
-                None
-            }
-            Ok(I2cCommand::SelectAxis(k)) => {
-                if usize::from(k) < self.axes() {
-                    if let Some(port) = self.ports.get_mut(p) {
-                        port.axis = k;
-                    }
-                } else {
-                    self.diag.refused = self.diag.refused.saturating_add(1);
-                }
-                Some(I2cCommand::Selection)
-            }
-            Ok(I2cCommand::Request(r)) => {
-                // I2C has no error reply: a refused request is only counted.
-                let _ = self.request(axis, r);
-                Some(I2cCommand::Request(r))
-            }
-            Ok(other) => Some(other),
-        };
-        if let Some(port) = self.ports.get_mut(p) {
-            port.last = last;
-        }
-    }
-
-    fn i2c_read(&mut self, which: Which, out: &mut [u8; RESPONSE_MAX]) -> usize {
-        *out = [0; RESPONSE_MAX];
-        let Some(port) = self.ports.get(Self::port(which)).copied() else {
-            return 0;
-        };
-        let axis = usize::from(port.axis);
-        match port.last {
-            Some(I2cCommand::Query(q)) => self
-                .query(axis, q)
-                .map(|v| i2c::encode(v, out))
-                .unwrap_or(0),
-            Some(I2cCommand::Request(Request::Loopback(_))) => self
-                .query(axis, Query::Loopback)
-                .map(|v| i2c::encode(v, out))
-                .unwrap_or(0),
-            Some(I2cCommand::Selection) => {
-                out[0] = port.axis;
-                out[1] = self.axes() as u8;
-                2
-            }
-            _ => 0,
-        }
     }
 }

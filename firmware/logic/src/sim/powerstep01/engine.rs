@@ -1,0 +1,453 @@
+//! The motion engine: speed and position integrated per 250 ns chip tick in
+//! closed form, exactly, independent of how time is sliced.
+
+use super::*;
+
+/// Distance in microsteps from `from` to `to` going in `dir` (22-bit wrap).
+pub(super) fn dist_in_dir(dir: Direction, from: u32, to: u32) -> u64 {
+    let d = match dir {
+        Direction::Forward => to.wrapping_sub(from),
+        Direction::Reverse => from.wrapping_sub(to),
+    };
+    u64::from(d & POS_MASK)
+}
+
+/// Full-step distance (2⁻⁴⁰ step) of `j` ticks accelerating by `a` from `v`.
+pub(super) fn s_up(v: u64, a: u64, j: u64) -> u128 {
+    let (v, a, j) = (u128::from(v), u128::from(a), u128::from(j));
+    j * v + a * (j * (j + 1) / 2)
+}
+
+/// Full-step distance of `j` ticks decelerating by `d` from `v` (`j·d ≤ v`).
+pub(super) fn s_down(v: u64, d: u64, j: u64) -> u128 {
+    let (v, d, j) = (u128::from(v), u128::from(d), u128::from(j));
+    (j * v).saturating_sub(d * (j * (j + 1) / 2))
+}
+
+/// Discrete braking distance from `v` down to the floor `vf` at `d` per tick
+/// (full-step units). `None` = infinite (no deceleration available).
+pub(super) fn brake_dist(v: u64, vf: u64, d: u64) -> Option<u128> {
+    if v <= vf {
+        return Some(0);
+    }
+    if d == 0 {
+        return None;
+    }
+    let n1 = (v - vf) / d;
+    let mut s = s_down(v, d, n1);
+    // One more tick clamps the speed to the floor if it did not land on it.
+    if v - n1 * d > vf {
+        s += u128::from(vf);
+    }
+    Some(s)
+}
+
+/// Smallest `j` in `lo..=hi` with `pred(j)` for a monotone predicate.
+pub(super) fn first_true(lo: u64, hi: u64, pred: impl Fn(u64) -> bool) -> Option<u64> {
+    if lo > hi || !pred(hi) {
+        return None;
+    }
+    let (mut lo, mut hi) = (lo, hi);
+    while lo < hi {
+        let mid = lo + (hi - lo) / 2;
+        if pred(mid) {
+            hi = mid;
+        } else {
+            lo = mid + 1;
+        }
+    }
+    Some(lo)
+}
+
+impl Powerstep01 {
+    // ---------------------------------------------------------- motion ----
+
+    /// Let `dt_ns` nanoseconds pass (exact; see the module docs).
+    pub fn advance(&mut self, dt_ns: u64) {
+        let total = u128::from(self.ns_rem) + u128::from(dt_ns);
+        let ticks = u64::try_from(total / u128::from(TICK_NS)).unwrap_or(u64::MAX);
+        self.ns_rem = (total % u128::from(TICK_NS)) as u64;
+        if self.dead.is_some() {
+            return;
+        }
+        self.run_engine(ticks);
+    }
+
+    pub(super) fn run_engine(&mut self, mut avail: u64) {
+        let mut instant = 0u32;
+        while let Some(used) = self.step(avail) {
+            avail = avail.saturating_sub(used);
+            if used == 0 {
+                instant += 1;
+                if instant > MAX_INSTANT_STEPS {
+                    break;
+                }
+            } else {
+                instant = 0;
+            }
+        }
+    }
+
+    /// Move `steps` microsteps in `dir` (ABS_POS and EL_POS wrap).
+    pub(super) fn apply_steps(&mut self, dir: Direction, steps: u128) {
+        let s22 = (steps & u128::from(POS_MASK)) as u32;
+        let pos = self.abs_raw();
+        let pos = match dir {
+            Direction::Forward => pos.wrapping_add(s22),
+            Direction::Reverse => pos.wrapping_sub(s22),
+        };
+        self.set_reg(Register::AbsPos, pos);
+        // EL_POS counts 1/128 steps: one microstep = 2^(7 − STEP_SEL).
+        let unit = 1u32 << (7u32.saturating_sub(self.step_shift()));
+        let el_steps = ((steps & 0x1FF) as u32).wrapping_mul(unit);
+        let el = self.reg(Register::ElPos);
+        let el = match dir {
+            Direction::Forward => el.wrapping_add(el_steps),
+            Direction::Reverse => el.wrapping_sub(el_steps),
+        };
+        self.set_reg(Register::ElPos, el);
+    }
+
+    /// Move by `dist` full-step units (2⁻⁴⁰ step) in the current direction.
+    /// Returns the number of whole microsteps taken.
+    pub(super) fn move_full(&mut self, dist: u128) -> u128 {
+        let micro = dist << self.step_shift();
+        let total = u128::from(self.frac) + micro;
+        let steps = total >> FRAC_BITS;
+        self.frac = (total & FRAC_MASK) as u64;
+        if steps > 0 {
+            self.apply_steps(self.dir, steps);
+        }
+        steps
+    }
+
+    pub(super) fn cruise(&mut self, avail: u64) -> Option<u64> {
+        if avail == 0 || self.v == 0 {
+            return None;
+        }
+        self.move_full(u128::from(self.v) * u128::from(avail));
+        Some(avail)
+    }
+
+    pub(super) fn ramp_up(&mut self, a: u64, n: u64) -> u128 {
+        let dist = s_up(self.v, a, n);
+        self.v = self.v.saturating_add(a.saturating_mul(n));
+        self.move_full(dist)
+    }
+
+    pub(super) fn ramp_down(&mut self, d: u64, n: u64) -> u128 {
+        let dist = s_down(self.v, d, n);
+        self.v = self.v.saturating_sub(d.saturating_mul(n));
+        self.move_full(dist)
+    }
+
+    /// Decelerate to the floor speed, then stop.
+    pub(super) fn decel_to_stop(&mut self, avail: u64) -> Ph {
+        let vf = self.floor();
+        let d = self.dec();
+        if self.v <= vf {
+            self.v = 0;
+            return Ph::Done;
+        }
+        if d == 0 {
+            return match self.cruise(avail) {
+                Some(n) => Ph::Used(n),
+                None => Ph::Wait,
+            };
+        }
+        let n1 = (self.v - vf) / d;
+        if n1 == 0 {
+            self.v = 0;
+            return Ph::Done;
+        }
+        if avail == 0 {
+            return Ph::Wait;
+        }
+        let n = n1.min(avail);
+        self.ramp_down(d, n);
+        Ph::Used(n)
+    }
+
+    /// One phase of the engine: `Some(ticks used)` (0 for an instant state
+    /// change) or `None` when nothing more happens within `avail` ticks.
+    pub(super) fn step(&mut self, avail: u64) -> Option<u64> {
+        match self.motion {
+            Motion::Idle => None,
+            Motion::Stopping { hiz } => match self.decel_to_stop(avail) {
+                Ph::Used(n) => Some(n),
+                Ph::Wait => None,
+                Ph::Done => {
+                    self.motion = Motion::Idle;
+                    if hiz {
+                        self.hiz = true;
+                    }
+                    Some(0)
+                }
+            },
+            Motion::Speed { dir, spd, .. } => self.step_speed(dir, spd, avail),
+            Motion::Position {
+                dir,
+                target,
+                remaining,
+                braking,
+            } => self.step_position(dir, target, remaining, braking, avail),
+        }
+    }
+
+    pub(super) fn flip(&mut self, dir: Direction) {
+        self.dir = dir;
+        self.frac = 0;
+    }
+
+    pub(super) fn step_speed(&mut self, dir: Direction, spd: u64, avail: u64) -> Option<u64> {
+        if self.dir != dir {
+            return match self.decel_to_stop(avail) {
+                Ph::Used(n) => Some(n),
+                Ph::Wait => None,
+                Ph::Done => {
+                    self.flip(dir);
+                    Some(0)
+                }
+            };
+        }
+        let vt = self.speed_target(spd);
+        let v = self.v;
+        if v == 0 && vt > 0 {
+            let start = self.floor().min(vt);
+            if start > 0 {
+                self.v = start;
+                return Some(0);
+            }
+        }
+        if v < vt {
+            let a = self.acc();
+            if a == 0 {
+                return self.cruise(avail);
+            }
+            let n1 = (vt - v) / a;
+            if n1 == 0 {
+                self.v = vt;
+                return Some(0);
+            }
+            if avail == 0 {
+                return None;
+            }
+            let n = n1.min(avail);
+            self.ramp_up(a, n);
+            return Some(n);
+        }
+        if v > vt {
+            let d = self.dec();
+            if d == 0 {
+                return self.cruise(avail);
+            }
+            let n1 = (v - vt) / d;
+            if n1 == 0 {
+                self.v = vt;
+                return Some(0);
+            }
+            if avail == 0 {
+                return None;
+            }
+            let n = n1.min(avail);
+            self.ramp_down(d, n);
+            return Some(n);
+        }
+        self.cruise(avail)
+    }
+
+    /// Finish a positioning command: `remaining` microsteps in `dir` land
+    /// exactly on the target.
+    pub(super) fn land(&mut self, dir: Direction, remaining: u64) {
+        self.apply_steps(dir, u128::from(remaining));
+        self.frac = 0;
+        self.v = 0;
+        self.motion = Motion::Idle;
+    }
+
+    pub(super) fn set_position_state(
+        &mut self,
+        dir: Direction,
+        target: u32,
+        remaining: u64,
+        braking: bool,
+    ) {
+        self.motion = Motion::Position {
+            dir,
+            target,
+            remaining,
+            braking,
+        };
+    }
+
+    pub(super) fn step_position(
+        &mut self,
+        dir: Direction,
+        target: u32,
+        remaining: u64,
+        braking: bool,
+        avail: u64,
+    ) -> Option<u64> {
+        if self.dir != dir {
+            return match self.decel_to_stop(avail) {
+                Ph::Used(n) => Some(n),
+                Ph::Wait => None,
+                Ph::Done => {
+                    self.flip(dir);
+                    let rem = dist_in_dir(dir, self.abs_raw(), target);
+                    self.set_position_state(dir, target, rem, false);
+                    Some(0)
+                }
+            };
+        }
+        if remaining == 0 {
+            self.land(dir, 0);
+            return Some(0);
+        }
+        let ms = 1u128 << self.step_shift();
+        // Remaining distance in 2⁻⁴⁰ microsteps (> 0: remaining ≥ 1, frac < 1).
+        let r = (u128::from(remaining) << FRAC_BITS).saturating_sub(u128::from(self.frac));
+        let v = self.v;
+        let vf = self.floor();
+        let vmax = self.vmax();
+        let d = self.dec();
+        // Distance `dist` (full-step units) reaches the target?
+        let reaches = |dist: u128| dist.saturating_mul(ms) >= r;
+
+        if braking {
+            if v > vf && d > 0 {
+                let n1 = (v - vf) / d;
+                if n1 == 0 {
+                    self.v = vf;
+                    return Some(0);
+                }
+                if avail == 0 {
+                    return None;
+                }
+                let n = n1.min(avail);
+                if let Some(j) = first_true(1, n, |j| reaches(s_down(v, d, j))) {
+                    self.land(dir, remaining);
+                    return Some(j);
+                }
+                let steps = self.ramp_down(d, n);
+                let rem = remaining.saturating_sub(u64::try_from(steps).unwrap_or(u64::MAX));
+                self.set_position_state(dir, target, rem, true);
+                return Some(n);
+            }
+            if v == 0 {
+                // Braked to a standstill short of the target (floor 0): go on.
+                self.set_position_state(dir, target, remaining, false);
+                return Some(0);
+            }
+            return self.cruise_position(dir, target, remaining, r, None, avail);
+        }
+
+        // Start braking once the remaining distance is within the braking distance.
+        let b = brake_dist(v, vf, d);
+        if b.is_none_or(reaches) && v > 0 {
+            self.set_position_state(dir, target, remaining, true);
+            return Some(0);
+        }
+        if v == 0 && vf > 0 {
+            self.v = vf;
+            return Some(0);
+        }
+        if v > vmax {
+            // Over speed (MAX_SPEED lowered): d > 0 here, else b would be None.
+            let n1 = (v - vmax) / d.max(1);
+            if n1 == 0 {
+                self.v = vmax;
+                return Some(0);
+            }
+            if avail == 0 {
+                return None;
+            }
+            let n = n1.min(avail);
+            if let Some(j) = first_true(1, n, |j| reaches(s_down(v, d, j))) {
+                self.land(dir, remaining);
+                return Some(j);
+            }
+            let steps = self.ramp_down(d, n);
+            let rem = remaining.saturating_sub(u64::try_from(steps).unwrap_or(u64::MAX));
+            self.set_position_state(dir, target, rem, false);
+            return Some(n);
+        }
+        if v < vmax {
+            let a = self.acc();
+            if a == 0 {
+                return self.cruise_position(dir, target, remaining, r, b, avail);
+            }
+            let n1 = (vmax - v) / a;
+            if n1 == 0 {
+                self.v = vmax;
+                return Some(0);
+            }
+            if avail == 0 {
+                return None;
+            }
+            let n = n1.min(avail);
+            let trigger = |j: u64| {
+                let moved = s_up(v, a, j);
+                match brake_dist(v + a * j, vf, d) {
+                    None => true,
+                    Some(bd) => reaches(moved.saturating_add(bd)),
+                }
+            };
+            if let Some(j) = first_true(1, n, trigger) {
+                if reaches(s_up(v, a, j)) {
+                    self.land(dir, remaining);
+                } else {
+                    let steps = self.ramp_up(a, j);
+                    let rem = remaining.saturating_sub(u64::try_from(steps).unwrap_or(u64::MAX));
+                    self.set_position_state(dir, target, rem, true);
+                }
+                return Some(j);
+            }
+            let steps = self.ramp_up(a, n);
+            let rem = remaining.saturating_sub(u64::try_from(steps).unwrap_or(u64::MAX));
+            self.set_position_state(dir, target, rem, false);
+            return Some(n);
+        }
+        self.cruise_position(dir, target, remaining, r, b, avail)
+    }
+
+    /// Constant speed towards the target. `brake`: braking distance at this
+    /// speed when braking has not started yet (`None` when already braking
+    /// or no braking applies): the phase ends where braking must start.
+    pub(super) fn cruise_position(
+        &mut self,
+        dir: Direction,
+        target: u32,
+        remaining: u64,
+        r: u128,
+        brake: Option<u128>,
+        avail: u64,
+    ) -> Option<u64> {
+        let v = self.v;
+        if v == 0 || avail == 0 {
+            return None;
+        }
+        let per = u128::from(v) << self.step_shift();
+        let ms = 1u128 << self.step_shift();
+        let bs = brake.unwrap_or(0).saturating_mul(ms);
+        let braking = matches!(self.motion, Motion::Position { braking: true, .. });
+        // First tick after which r − j·per ≤ bs (bs < r: not yet triggered).
+        let gap = r.saturating_sub(bs);
+        let j = gap.div_ceil(per).max(1);
+        if j <= u128::from(avail) {
+            let j64 = u64::try_from(j).unwrap_or(avail);
+            if per.saturating_mul(j) >= r {
+                self.land(dir, remaining);
+            } else {
+                let steps = self.move_full(u128::from(v) * j);
+                let rem = remaining.saturating_sub(u64::try_from(steps).unwrap_or(u64::MAX));
+                self.set_position_state(dir, target, rem, true);
+            }
+            return Some(j64);
+        }
+        let steps = self.move_full(u128::from(v) * u128::from(avail));
+        let rem = remaining.saturating_sub(u64::try_from(steps).unwrap_or(u64::MAX));
+        self.set_position_state(dir, target, rem, braking);
+        Some(avail)
+    }
+}
