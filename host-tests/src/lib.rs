@@ -1,8 +1,8 @@
 //! Harnesses around the simulated hardware in `bridge_logic::sim`, shared by
 //! the scenario tests in `tests/`, the plot and the benchmark binaries.
 
-pub mod i2c_master;
-pub mod modbus_master;
+pub mod i2c_bench;
+pub mod modbus_bench;
 pub mod rig;
 pub mod sim_bridge;
 pub mod svg;

@@ -5,15 +5,31 @@
 use bridge_logic::motion::{Axis, AxisConfig, AxisGroup, AxisState, Limits, TickReport};
 use bridge_logic::powerstep::chain::Chain;
 use bridge_logic::powerstep::registers::sign_extend_22;
-use bridge_logic::sim::SimChain;
+use bridge_logic::sim::{SimChain, SimClock, SimControl};
+
+/// An axis group and its chain as one simulated control loop.
+pub struct GroupOnChain<'a> {
+    pub group: &'a mut AxisGroup,
+    pub chain: &'a mut Chain<SimChain>,
+    /// What the last tick put on the chain (`None`: the chain failed).
+    pub report: Option<TickReport>,
+}
+
+impl SimControl for GroupOnChain<'_> {
+    fn control_tick(&mut self, _now_ms: u64) {
+        self.report = self.group.tick(self.chain).ok();
+    }
+    fn chips(&mut self) -> &mut SimChain {
+        self.chain.bus_mut()
+    }
+}
 
 /// Simulated chain + axes + virtual clock.
 pub struct Rig {
     pub chain: Chain<SimChain>,
     pub group: AxisGroup,
-    pub tick_us: u32,
-    /// Control ticks run so far.
-    pub ticks: u64,
+    /// The virtual clock; `clock.ticks()` control ticks have run.
+    pub clock: SimClock,
     /// Unwrapped ABS_POS of every simulated chip (tracked tick by tick).
     chip_wide: Vec<i64>,
     chip_raw: Vec<i32>,
@@ -37,8 +53,7 @@ impl Rig {
         let mut rig = Rig {
             chain,
             group,
-            tick_us,
-            ticks: 0,
+            clock: SimClock::new(tick_us),
             chip_wide: vec![0; n],
             chip_raw: vec![0; n],
             max_following: vec![0; n],
@@ -59,10 +74,13 @@ impl Rig {
 
     /// One control tick: the batch goes out, then the chips run for one tick.
     pub fn tick(&mut self) {
-        let report = self.group.tick(&mut self.chain).expect("chain tick");
-        self.last_report = Some(report);
-        self.chain.bus_mut().advance(u64::from(self.tick_us) * 1000);
-        self.ticks += 1;
+        let mut on_chain = GroupOnChain {
+            group: &mut self.group,
+            chain: &mut self.chain,
+            report: None,
+        };
+        self.clock.tick(&mut on_chain);
+        self.last_report = Some(on_chain.report.expect("chain tick"));
         for k in 0..self.group.len() {
             let raw = self.chain.bus().device(k).expect("device").abs_pos();
             let delta = sign_extend_22((raw.wrapping_sub(self.chip_raw[k]) as u32) & 0x3F_FFFF);

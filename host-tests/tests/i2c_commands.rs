@@ -10,13 +10,13 @@ use bridge_logic::powerstep::registers::Register;
 use bridge_logic::powerstep::Direction;
 use bridge_logic::powerstep::StepSel;
 use bridge_logic::sim::Fault;
-use host_tests::i2c_master::{le_i32, le_u16, Bench};
+use host_tests::i2c_bench::{le_i32, le_u16, I2cBench};
 
 const A0: u8 = 1; // factory address of axis 0
 const A1: u8 = 2; // axis 1
 
-fn bench() -> Bench {
-    Bench::new(2, Settings::FACTORY)
+fn bench() -> I2cBench {
+    I2cBench::new(2, Settings::FACTORY)
 }
 
 /// Physical microsteps of a logical position in the factory step mode (1/16 on 1/128).
@@ -283,7 +283,7 @@ fn driver_mode_1_is_accepted_where_the_board_routes_step() {
         step_dir_routed: true,
         ..Board::REFERENCE
     };
-    let mut b = Bench::with_board(1, Settings::FACTORY, board);
+    let mut b = I2cBench::with_board(1, Settings::FACTORY, board);
     b.write(A0, &[0x05, 1]);
     assert_eq!(b.query(A0, 0x14, 1), [1]);
 }
@@ -575,7 +575,7 @@ fn soft_stop_extension_0x71_decelerates_with_dec() {
 
 #[test]
 fn select_axis_extension_0x70_reaches_every_axis_from_one_address() {
-    let mut b = Bench::new(4, Settings::FACTORY);
+    let mut b = I2cBench::new(4, Settings::FACTORY);
     b.write(A0, &[0x70, 3]);
     assert_eq!(b.read(A0, 2).unwrap(), [3, 4]);
     b.write(A0, &[0x50, 0x64, 0, 0, 0]);
@@ -649,7 +649,7 @@ fn settings_with(f: impl Fn(&mut bridge_logic::postep60::AxisSettings)) -> Setti
 
 #[test]
 fn an_end_switch_edge_stops_the_axis_and_a_new_target_either_way_is_accepted() {
-    let mut b = Bench::new(
+    let mut b = I2cBench::new(
         1,
         settings_with(|a| {
             a.end_switch = true;
@@ -674,7 +674,7 @@ fn an_end_switch_edge_stops_the_axis_and_a_new_target_either_way_is_accepted() {
 
 #[test]
 fn a_disabled_end_switch_does_not_stop_the_axis() {
-    let mut b = Bench::new(1, Settings::FACTORY);
+    let mut b = I2cBench::new(1, Settings::FACTORY);
     b.write(A0, &[0x50, 0x10, 0x27, 0x00, 0x00]);
     b.run(300);
     b.chip_mut(0).set_switch(true);
@@ -684,7 +684,7 @@ fn a_disabled_end_switch_does_not_stop_the_axis() {
 
 #[test]
 fn binx_buttons_move_by_bin1_and_bin2_steps() {
-    let mut b = Bench::new(
+    let mut b = I2cBench::new(
         1,
         settings_with(|a| {
             a.mode = DriverMode::BinButtons;
@@ -745,7 +745,7 @@ fn binx_buttons_do_nothing_in_position_mode() {
 
 #[test]
 fn auto_run_starts_at_power_up_with_max_speed() {
-    let mut b = Bench::new(
+    let mut b = I2cBench::new(
         1,
         settings_with(|a| {
             a.mode = DriverMode::AutoRun;
@@ -760,7 +760,7 @@ fn auto_run_starts_at_power_up_with_max_speed() {
 
 #[test]
 fn auto_run_with_invert_runs_backwards() {
-    let mut b = Bench::new(
+    let mut b = I2cBench::new(
         1,
         settings_with(|a| {
             a.mode = DriverMode::AutoRun;
@@ -797,7 +797,7 @@ fn auto_run_does_not_start_on_a_faulted_axis() {
     let mut s = Settings::FACTORY;
     s.axes[0].mode = DriverMode::AutoRun;
     s.axes[0].max_speed = 500;
-    let mut b = Bench::new(1, s);
+    let mut b = I2cBench::new(1, s);
     b.chip_mut(0).inject(Fault::Overcurrent);
     b.run(2000);
     // It started at power-up, then the overcurrent stopped it and it stays stopped.

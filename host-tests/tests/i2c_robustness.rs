@@ -2,7 +2,7 @@
 //! a motor unless they contain a valid motion command.
 
 use bridge_logic::postep60::Settings;
-use host_tests::i2c_master::Bench;
+use host_tests::i2c_bench::I2cBench;
 use proptest::prelude::*;
 
 /// Command bytes that may legitimately start motion or change what moves:
@@ -34,7 +34,7 @@ proptest! {
     fn random_transactions_never_panic_and_move_nothing_without_a_motion_command(
         ops in proptest::collection::vec(op(), 1..40)
     ) {
-        let mut b = Bench::new(2, Settings::FACTORY);
+        let mut b = I2cBench::new(2, Settings::FACTORY);
         let mut motion = false;
         for op in ops {
             match op {

@@ -11,10 +11,10 @@ use bridge_logic::powerstep::registers::Register;
 use bridge_logic::powerstep::Direction;
 use bridge_logic::powerstep::StepSel;
 use bridge_logic::sim::Fault;
-use host_tests::modbus_master::Line;
+use host_tests::modbus_bench::ModbusBench;
 
-fn line() -> Line {
-    Line::new(2, Settings::FACTORY)
+fn line() -> ModbusBench {
+    ModbusBench::new(2, Settings::FACTORY)
 }
 
 /// Physical microsteps of a logical position in the factory step mode (1/16 on 1/128).
@@ -144,7 +144,7 @@ fn set_driver_mode_0x05_external_is_accepted_where_the_board_routes_step() {
         step_dir_routed: true,
         ..Board::REFERENCE
     };
-    let mut b = Line::with_board(1, Settings::FACTORY, board);
+    let mut b = ModbusBench::with_board(1, Settings::FACTORY, board);
     assert_eq!(b.write(1, 0x05, 1), Ok(()));
     assert_eq!(b.read(1, 0x14, 1), Ok(vec![1]));
 }
@@ -585,7 +585,7 @@ fn single_register_commands_may_also_be_written_by_fc_0x10() {
 fn two_axes_at_ids_base_and_base_plus_1_move_independently() {
     let mut s = Settings::FACTORY;
     s.base_address = 100;
-    let mut b = Line::new(2, s);
+    let mut b = ModbusBench::new(2, s);
     assert_eq!(b.set_position(100, 500), Ok(()));
     assert_eq!(b.set_position(101, -700), Ok(()));
     b.settle(30_000);
@@ -608,7 +608,7 @@ fn two_axes_at_ids_base_and_base_plus_1_move_independently() {
 fn nineteen_thousand_two_hundred_baud_without_parity_works_the_same() {
     let mut s = Settings::FACTORY;
     s.serial = bridge_logic::postep60::settings::Serial::from_code(5).unwrap();
-    let mut b = Line::new(1, s);
+    let mut b = ModbusBench::new(1, s);
     assert_eq!(b.char_us, 573);
     assert_eq!(b.timing.t35_us, 2006);
     assert_eq!(b.set_position(1, 321), Ok(()));

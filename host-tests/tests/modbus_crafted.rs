@@ -11,10 +11,10 @@
 
 use bridge_logic::postep60::Settings;
 use bridge_logic::sim::Fault;
-use host_tests::modbus_master::{adu, Line};
+use host_tests::modbus_bench::{adu, ModbusBench};
 
-fn line() -> Line {
-    Line::new(2, Settings::FACTORY)
+fn line() -> ModbusBench {
+    ModbusBench::new(2, Settings::FACTORY)
 }
 
 // ------------------------------------------------ quantity 0 and max+1 ----
@@ -302,7 +302,7 @@ fn ids_outside_1_to_247_are_never_answered() {
     // Axis 1 would sit at id 248: it is reachable over I2C only.
     let mut s = Settings::FACTORY;
     s.base_address = 247;
-    let mut b = Line::new(2, s);
+    let mut b = ModbusBench::new(2, s);
     assert_eq!(b.read(247, 0x14, 1), Ok(vec![4]));
     for id in 248..=255u8 {
         assert_eq!(
@@ -351,7 +351,7 @@ fn a_broadcast_read_gets_no_reply_and_the_next_request_is_answered() {
 
 #[test]
 fn a_broadcast_write_runs_on_every_axis_without_a_reply() {
-    let mut b = Line::new(3, Settings::FACTORY);
+    let mut b = ModbusBench::new(3, Settings::FACTORY);
     // Set position 800 on every axis, then max speed 2000 on every axis.
     assert_eq!(
         b.transact(&[0x00, 0x10, 0x00, 0x50, 0x00, 0x02, 0x04, 0x00, 0x00, 0x03, 0x20, 0xF3, 0x47]),
@@ -395,7 +395,7 @@ fn a_broadcast_the_axes_refuse_is_still_silent() {
 
 #[test]
 fn a_broadcast_address_change_moves_only_the_axis_at_byte0() {
-    let mut b = Line::new(3, Settings::FACTORY);
+    let mut b = ModbusBench::new(3, Settings::FACTORY);
     // current 2 (axis 1) → 5: base becomes 4, axes at 4, 5, 6.
     assert_eq!(
         b.transact(&[0x00, 0x06, 0x00, 0x04, 0x05, 0x02, 0x4B, 0x4B]),

@@ -10,7 +10,7 @@
 //! garbage) get no response here.
 
 use bridge_logic::postep60::Settings;
-use host_tests::modbus_master::{adu, Line};
+use host_tests::modbus_bench::{adu, ModbusBench};
 
 /// pymodbus `good_frame`: id 2, read 125 holding registers at address 1.
 /// Our id 2 is axis 1, and address 1 (loopback) is I2C-only: exception 02.
@@ -20,8 +20,8 @@ const GOOD_REPLY: [u8; 5] = [0x02, 0x83, 0x02, 0x30, 0xF1];
 const MODE: [u8; 8] = [0x02, 0x03, 0x00, 0x14, 0x00, 0x01, 0xC4, 0x3D];
 const MODE_REPLY: [u8; 7] = [0x02, 0x03, 0x02, 0x00, 0x04, 0xFD, 0x87];
 
-fn line() -> Line {
-    Line::new(2, Settings::FACTORY)
+fn line() -> ModbusBench {
+    ModbusBench::new(2, Settings::FACTORY)
 }
 
 /// Silence that ends a frame at 9600 baud, with margin.
@@ -86,7 +86,7 @@ fn big_split_response_from_another_id_is_ignored() {
     // silences shorter than t1.5 (1719 µs).
     let mut s = Settings::FACTORY;
     s.base_address = 3;
-    let mut b3 = Line::new(2, s);
+    let mut b3 = ModbusBench::new(2, s);
     let mut body = vec![0x01, 0x03, 0xFA];
     for _ in 0..125 {
         body.extend_from_slice(&[0x00, 0x11]);
@@ -303,7 +303,7 @@ fn joining_a_busy_line_mid_frame_resynchronises_at_the_next_silence() {
 fn nineteen_thousand_two_hundred_baud_uses_its_own_t15_and_t35() {
     let mut s = Settings::FACTORY;
     s.serial = bridge_logic::postep60::settings::Serial::from_code(4).unwrap(); // 19200 odd
-    let mut b = Line::new(2, s);
+    let mut b = ModbusBench::new(2, s);
     assert_eq!((b.timing.t15_us, b.timing.t35_us), (860, 2006));
     // a 1 ms silence inside a frame is tolerated at 9600 but not at 19200
     b.put(&MODE[..4]);

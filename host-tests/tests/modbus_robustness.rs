@@ -3,9 +3,9 @@
 //! and only the request their command address names —, only intact unicast
 //! frames for our ids are answered, and no motor moves without a motion
 //! request. The same check runs under cargo-fuzz (`fuzz/`, target
-//! `modbus_stream`); see `host_tests::modbus_master::check_stream`.
+//! `modbus_stream`); see `host_tests::modbus_bench::check_stream`.
 
-use host_tests::modbus_master::{adu, check_stream};
+use host_tests::modbus_bench::{adu, check_stream};
 use proptest::prelude::*;
 
 /// One character at 9600 baud, µs.

@@ -7,7 +7,7 @@ use bridge_logic::motion::axis::logical_to_physical;
 use bridge_logic::motion::{AxisConfig, AxisFault, Limits};
 use bridge_logic::powerstep::registers::{sign_extend_22, wrap_22};
 use bridge_logic::powerstep::{DriveMode, StepSel};
-use bridge_logic::sim::Fault;
+use bridge_logic::sim::{Fault, SimClock, SimControl};
 use host_tests::rig::Rig;
 
 const TICK_US: u32 = 1000;
@@ -177,7 +177,7 @@ fn a_thousand_random_sequences_land_exactly_with_following_error_below_one_full_
     println!(
         "1000 sequences, {beyond_2_21} moves beyond 2^21 microsteps, {reversals} reversals, \
          {} ticks; max following error per axis (full steps): {worst:?}",
-        rig.ticks
+        rig.clock.ticks()
     );
     for (k, w) in worst.iter().enumerate() {
         assert!(*w <= 1.0, "axis {k}: following error {w} full steps");
@@ -308,6 +308,21 @@ impl bridge_logic::powerstep::ChainBus for Flaky {
     }
 }
 
+/// The group on the flaky chain as one simulated control loop.
+struct FlakyLoop {
+    group: bridge_logic::motion::AxisGroup,
+    chain: bridge_logic::powerstep::Chain<Flaky>,
+}
+
+impl SimControl for FlakyLoop {
+    fn control_tick(&mut self, _now_ms: u64) {
+        let _ = self.group.tick(&mut self.chain);
+    }
+    fn chips(&mut self) -> &mut bridge_logic::sim::SimChain {
+        &mut self.chain.bus_mut().sim
+    }
+}
+
 #[test]
 fn a_chain_error_sets_every_chip_up_again_and_moves_still_land() {
     use bridge_logic::motion::{Axis, AxisGroup, AxisState};
@@ -322,40 +337,35 @@ fn a_chain_error_sets_every_chip_up_again_and_moves_still_land() {
     for _ in 0..2 {
         let _ = group.push(Axis::new(c, limits_full(&c, 2000, 10_000, 10_000)));
     }
-    let tick = |group: &mut AxisGroup, chain: &mut Chain<Flaky>| {
-        let _ = group.tick(chain);
-        chain.bus_mut().sim.advance(1_000_000);
-    };
-    for _ in 0..10 {
-        tick(&mut group, &mut chain);
-    }
-    group.axis_mut(0).unwrap().move_to(40_000);
-    for _ in 0..300 {
-        tick(&mut group, &mut chain);
-    }
-    chain.bus_mut().fail_next = true;
-    tick(&mut group, &mut chain);
-    assert_eq!(group.axis(0).unwrap().fault(), Some(AxisFault::ChainError));
+    let mut l = FlakyLoop { group, chain };
+    let mut clock = SimClock::new(TICK_US);
+    clock.run(&mut l, 10);
+    l.group.axis_mut(0).unwrap().move_to(40_000);
+    clock.run(&mut l, 300);
+    l.chain.bus_mut().fail_next = true;
+    clock.tick(&mut l);
+    assert_eq!(
+        l.group.axis(0).unwrap().fault(),
+        Some(AxisFault::ChainError)
+    );
     assert!(matches!(
-        group.axis(0).unwrap().state(),
+        l.group.axis(0).unwrap().state(),
         AxisState::Setup(_)
     ));
-    for _ in 0..20 {
-        tick(&mut group, &mut chain);
-    }
+    clock.run(&mut l, 20);
     // The chip was stopped (HardHiZ at setup) and set up again.
-    let held = group.axis(0).unwrap().chip_position();
+    let held = l.group.axis(0).unwrap().chip_position();
     assert_eq!(
-        i64::from(chain.bus().sim.device(0).unwrap().abs_pos()),
+        i64::from(l.chain.bus().sim.device(0).unwrap().abs_pos()),
         held
     );
-    group.axis_mut(0).unwrap().move_to(50_000);
+    l.group.axis_mut(0).unwrap().move_to(50_000);
     for _ in 0..30_000 {
-        tick(&mut group, &mut chain);
-        if group.is_settled() {
+        clock.tick(&mut l);
+        if l.group.is_settled() {
             break;
         }
     }
-    assert!(group.is_settled());
-    assert_eq!(chain.bus().sim.device(0).unwrap().abs_pos(), 50_000 * 8);
+    assert!(l.group.is_settled());
+    assert_eq!(l.chain.bus().sim.device(0).unwrap().abs_pos(), 50_000 * 8);
 }

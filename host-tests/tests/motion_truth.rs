@@ -17,7 +17,7 @@ use bridge_logic::motion::AxisState;
 use bridge_logic::postep60::{Board, Query, Request, Settings, Value};
 use bridge_logic::powerstep::registers::{sign_extend_22, wrap_22, Register};
 use bridge_logic::powerstep::Command;
-use bridge_logic::sim::{Fault, SimChain};
+use bridge_logic::sim::{Fault, SimChain, SimClock};
 use host_tests::sim_bridge::{chip, chip_mut, new_bridge, TICK_US};
 
 const BOARD: Board = Board::REFERENCE;
@@ -92,7 +92,7 @@ fn nearest(raw: u32, near: i64) -> i64 {
 /// Bridge + simulated chips + virtual clock + the oracle.
 struct Truth {
     bridge: Bridge<SimChain>,
-    now_ms: u64,
+    clock: SimClock,
     expect: Vec<Expect>,
     mode: Vec<u8>,
     clean: Vec<Option<Clean>>,
@@ -109,7 +109,7 @@ impl Truth {
     fn new(n: usize, settings: Settings) -> Truth {
         let mut t = Truth {
             bridge: new_bridge(n, settings, BOARD),
-            now_ms: 0,
+            clock: SimClock::new(TICK_US),
             expect: vec![
                 Expect::At {
                     target: 0,
@@ -135,12 +135,7 @@ impl Truth {
 
     fn run(&mut self, ms: u64) {
         for _ in 0..ms {
-            self.now_ms += 1;
-            self.bridge.tick(self.now_ms);
-            self.bridge
-                .chain_mut()
-                .bus_mut()
-                .advance(u64::from(TICK_US) * 1000);
+            self.clock.tick(&mut self.bridge);
             self.observe();
         }
     }
@@ -176,11 +171,11 @@ impl Truth {
                 self.overshoot = self.overshoot.max(past);
             }
             let axis = self.bridge.axis(k).expect("axis");
-            if trace_on(k, self.now_ms) {
+            if trace_on(k, self.clock.now_ms()) {
                 let c = chip(&self.bridge, k);
                 println!(
                     "t={} axis {k}: {:?} profile {} v={} chip {wide} speed {} error {} last {:?}",
-                    self.now_ms,
+                    self.clock.now_ms(),
                     axis.state(),
                     axis.profile_physical(),
                     axis.profile().velocity(),
@@ -468,7 +463,7 @@ fn random_run(n: usize, sequences: usize, seed: u64) -> Truth {
          max following error {:.3} full steps; limit changes {}, stop+move {}, zero+move {}, \
          step-mode changes {}, chip resets {}, retargets {}",
         t.moves,
-        t.now_ms,
+        t.clock.now_ms(),
         t.lost.len(),
         t.overshoot as f64 / MICRO,
         t.following as f64 / MICRO,

@@ -10,7 +10,7 @@
 use bridge_logic::motion::{Axis, AxisConfig, AxisGroup, Limits, Profile};
 use bridge_logic::powerstep::chain::{Chain, Plan, Replies};
 use bridge_logic::powerstep::{DriveMode, StepSel};
-use bridge_logic::sim::SimChain;
+use bridge_logic::sim::{SimChain, SimClock, SimControl};
 
 const TICK_US: u32 = 1000;
 
@@ -27,6 +27,38 @@ fn bench_prepare(g: &mut AxisGroup) -> Option<&Plan> {
 #[inline(never)]
 fn bench_finish(g: &mut AxisGroup, r: &Replies) {
     g.finish(r)
+}
+
+/// The 8-axis group on its chain; each control tick's own work is in the
+/// `bench_*` functions callgrind collects.
+struct Bench {
+    group: AxisGroup,
+    chain: Chain<SimChain>,
+    replies: Replies,
+    /// Measured ticks go through the `bench_*` functions; set-up ticks not.
+    measure: bool,
+    /// Windows per tick → ticks.
+    histogram: std::collections::BTreeMap<usize, u32>,
+}
+
+impl SimControl for Bench {
+    fn control_tick(&mut self, _now_ms: u64) {
+        if !self.measure {
+            let _ = self.group.tick(&mut self.chain);
+            return;
+        }
+        let Some(plan) = bench_prepare(&mut self.group) else {
+            return;
+        };
+        *self.histogram.entry(plan.windows()).or_default() += 1;
+        if self.chain.run_into(plan, &mut self.replies).is_err() {
+            self.replies = Replies::default();
+        }
+        bench_finish(&mut self.group, &self.replies);
+    }
+    fn chips(&mut self) -> &mut SimChain {
+        self.chain.bus_mut()
+    }
 }
 
 fn limits() -> Limits {
@@ -67,30 +99,25 @@ fn main() {
                 };
                 let _ = group.push(Axis::new(cfg, limits()));
             }
+            let mut bench = Bench {
+                group,
+                chain,
+                replies: Replies::default(),
+                measure: false,
+                histogram: Default::default(),
+            };
+            let mut clock = SimClock::new(TICK_US);
             // Configure the chips and start a long move on every axis (not measured).
-            for _ in 0..10 {
-                let _ = group.tick(&mut chain);
-                chain.bus_mut().advance(u64::from(TICK_US) * 1000);
-            }
+            clock.run(&mut bench, 10);
             for k in 0..8 {
-                if let Some(a) = group.axis_mut(k) {
+                if let Some(a) = bench.group.axis_mut(k) {
                     a.move_to(if k % 2 == 0 { 1 << 30 } else { -(1 << 30) });
                 }
             }
-            let mut histogram = std::collections::BTreeMap::<usize, u32>::new();
-            let mut replies = Replies::default();
-            for _ in 0..n {
-                let Some(plan) = bench_prepare(&mut group) else {
-                    break;
-                };
-                *histogram.entry(plan.windows()).or_default() += 1;
-                if chain.run_into(plan, &mut replies).is_err() {
-                    replies = Replies::default();
-                }
-                bench_finish(&mut group, &replies);
-                chain.bus_mut().advance(u64::from(TICK_US) * 1000);
-            }
-            let h: Vec<String> = histogram
+            bench.measure = true;
+            clock.run(&mut bench, u64::from(n));
+            let h: Vec<String> = bench
+                .histogram
                 .iter()
                 .map(|(w, c)| format!("{w} windows ({} bytes): {c} ticks", w * 8))
                 .collect();

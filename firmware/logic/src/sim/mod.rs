@@ -7,12 +7,16 @@
 //! * [`chain`] — N chips wired as one daisy-chain shift register, usable as
 //!   the [`ChainBus`](crate::powerstep::ChainBus) of a
 //!   [`Chain`](crate::powerstep::Chain).
+//! * [`clock`] — virtual time: a control tick, then one tick period of chip
+//!   time; the one clock every simulated control loop runs on.
 //! * [`flash`] — NOR flash with power-cut injection, for the settings store.
 
 pub mod chain;
+pub mod clock;
 pub mod flash;
 pub mod powerstep01;
 
 pub use chain::SimChain;
+pub use clock::{SimClock, SimControl};
 pub use flash::{SimFlash, SimFlashError};
 pub use powerstep01::{Fault, Powerstep01, TICK_NS};

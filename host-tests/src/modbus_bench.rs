@@ -10,7 +10,7 @@
 use bridge_logic::bridge::Bridge;
 use bridge_logic::postep60::settings::Serial;
 use bridge_logic::postep60::{Board, Settings};
-use bridge_logic::sim::SimChain;
+use bridge_logic::sim::{SimChain, SimClock};
 use bridge_logic::transport::modbus::{RtuServer, Timing};
 
 pub use crate::sim_bridge::TICK_US;
@@ -52,7 +52,7 @@ pub fn character_us(serial: Serial) -> u64 {
 }
 
 /// Bridge + simulated chain + RTU server + virtual clock.
-pub struct Line {
+pub struct ModbusBench {
     pub bridge: Bridge<SimChain>,
     pub server: RtuServer,
     pub timing: Timing,
@@ -60,28 +60,28 @@ pub struct Line {
     pub char_us: u64,
     /// Virtual time, µs.
     pub now_us: u64,
-    /// Control ticks done (the bridge ticks at every whole millisecond).
-    ticks: u64,
+    /// The control loop's virtual clock (ticks every [`TICK_US`]).
+    pub clock: SimClock,
     /// Responses the server produced, with the time `poll` returned them.
     pub sent: Vec<(u64, Vec<u8>)>,
 }
 
-impl Line {
+impl ModbusBench {
     /// A bridge on `n` simulated chips with `settings`, run until configured.
-    pub fn new(n: usize, settings: Settings) -> Line {
+    pub fn new(n: usize, settings: Settings) -> ModbusBench {
         Self::with_board(n, settings, Board::REFERENCE)
     }
 
-    pub fn with_board(n: usize, settings: Settings, board: Board) -> Line {
+    pub fn with_board(n: usize, settings: Settings, board: Board) -> ModbusBench {
         let bridge = crate::sim_bridge::new_bridge(n, settings, board);
         let timing = Timing::for_serial(bridge.serial());
-        let mut line = Line {
+        let mut line = ModbusBench {
             char_us: character_us(bridge.serial()),
             server: RtuServer::new(timing),
             timing,
             bridge,
             now_us: 0,
-            ticks: 0,
+            clock: SimClock::new(TICK_US),
             sent: Vec::new(),
         };
         line.run(20);
@@ -102,7 +102,7 @@ impl Line {
     /// that is due before the next tick: returns it (the caller polls).
     pub fn step_until(&mut self, t: u64) -> Option<u64> {
         loop {
-            let next_tick = (self.ticks + 1) * 1000;
+            let next_tick = self.clock.next_tick_us();
             match self.server.deadline().filter(|d| *d <= t) {
                 Some(d) if d <= next_tick => {
                     self.now_us = d.max(self.now_us);
@@ -110,12 +110,7 @@ impl Line {
                 }
                 _ if next_tick <= t => {
                     self.now_us = self.now_us.max(next_tick);
-                    self.ticks += 1;
-                    self.bridge.tick(self.ticks);
-                    self.bridge
-                        .chain_mut()
-                        .bus_mut()
-                        .advance(u64::from(TICK_US) * 1000);
+                    self.clock.tick(&mut self.bridge);
                 }
                 _ => {
                     self.now_us = self.now_us.max(t);
@@ -392,7 +387,7 @@ pub struct StreamReport {
 /// the timing makes a frame of ≥ 4 bytes gets a correct CRC first, so that
 /// most frames reach the command layer.
 pub fn check_stream(records: &[(u8, u64)], fix_crc: bool) -> StreamReport {
-    let mut line = Line::new(2, Settings::FACTORY);
+    let mut line = ModbusBench::new(2, Settings::FACTORY);
     let timing = line.timing;
     let mut records = records.to_vec();
     if fix_crc {
@@ -427,7 +422,7 @@ pub fn check_stream(records: &[(u8, u64)], fix_crc: bool) -> StreamReport {
 }
 
 fn checked_poll(
-    line: &mut Line,
+    line: &mut ModbusBench,
     model: &mut FrameModel,
     at: u64,
     report: &mut StreamReport,

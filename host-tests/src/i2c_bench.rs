@@ -1,32 +1,32 @@
-//! A simulated I2C master talking to the bridge through the same
-//! `I2cSlave` state machine the firmware's interrupt handlers drive, plus a
-//! virtual clock that ticks the bridge and the simulated chips together.
+//! An I2C test bench: the bridge on simulated chips, a simulated I2C master
+//! talking to it through the same `I2cSlave` state machine the firmware's
+//! interrupt handlers drive, and the virtual clock ([`SimClock`]).
 
 use bridge_logic::bridge::Bridge;
 use bridge_logic::postep60::{Board, Settings};
-use bridge_logic::sim::SimChain;
+use bridge_logic::sim::{SimChain, SimClock};
 use bridge_logic::transport::i2c::{I2cSlave, Which};
 
 pub use crate::sim_bridge::TICK_US;
 
 /// Bridge + simulated chain + I2C bus + virtual clock.
-pub struct Bench {
+pub struct I2cBench {
     pub bridge: Bridge<SimChain>,
     pub slave: I2cSlave,
-    pub now_ms: u64,
+    pub clock: SimClock,
 }
 
-impl Bench {
+impl I2cBench {
     /// A bridge on `n` simulated chips with `settings`, run until configured.
-    pub fn new(n: usize, settings: Settings) -> Bench {
+    pub fn new(n: usize, settings: Settings) -> I2cBench {
         Self::with_board(n, settings, Board::REFERENCE)
     }
 
-    pub fn with_board(n: usize, settings: Settings, board: Board) -> Bench {
-        let mut b = Bench {
+    pub fn with_board(n: usize, settings: Settings, board: Board) -> I2cBench {
+        let mut b = I2cBench {
             bridge: crate::sim_bridge::new_bridge(n, settings, board),
             slave: I2cSlave::new(),
-            now_ms: 0,
+            clock: SimClock::new(TICK_US),
         };
         b.run(20);
         b
@@ -75,14 +75,8 @@ impl Bench {
 
     /// Run the control loop for `ms` milliseconds of virtual time.
     pub fn run(&mut self, ms: u64) {
-        for _ in 0..ms {
-            self.now_ms += 1;
-            self.bridge.tick(self.now_ms);
-            self.bridge
-                .chain_mut()
-                .bus_mut()
-                .advance(u64::from(TICK_US) * 1000);
-        }
+        self.clock
+            .run(&mut self.bridge, ms * 1000 / u64::from(TICK_US));
     }
 
     /// Run until every axis is settled (panics after `cap` ms).
