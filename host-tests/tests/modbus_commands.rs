@@ -699,3 +699,16 @@ fn current_speed_0x44_reads_speeds_above_32767() {
     b.run(1500);
     assert_eq!(b.read(1, 0x44, 1), Ok(vec![50_000]));
 }
+
+#[test]
+fn adcin_undervoltage_is_not_a_fault() {
+    // An unused ADCIN may read as undervoltage for good (facts doc §2).
+    let mut b = line();
+    b.chip_mut(0).inject(Fault::AdcinLow);
+    b.run(20);
+    assert!(b.chip(0).status().uvlo_adc());
+    assert_eq!(b.read(1, 0x25, 1), Ok(vec![0]));
+    b.set_position(1, 800).unwrap();
+    b.settle(20_000);
+    assert_eq!(b.chip(0).abs_pos(), phys(800));
+}

@@ -786,3 +786,49 @@ fn current_speed_reads_every_speed_up_to_65535() {
         Some(Value::U16(60_000))
     );
 }
+
+/// A chain bus that stops answering on request.
+struct Breakable {
+    sim: SimChain,
+    broken: bool,
+}
+
+impl bridge_logic::powerstep::ChainBus for Breakable {
+    type Error = ();
+    fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), ()> {
+        if self.broken {
+            return Err(());
+        }
+        self.sim.transfer(tx, rx);
+        Ok(())
+    }
+}
+
+#[test]
+fn ten_failed_ticks_in_a_row_declare_the_chain_dead() {
+    let mut b = Bridge::new(
+        Breakable {
+            sim: SimChain::new(2),
+            broken: false,
+        },
+        BOARD,
+        Settings::FACTORY,
+        bridge_logic::bridge::SettingsSource::Stored,
+        TICK_US,
+    );
+    for now in 1..=20 {
+        b.tick(now);
+    }
+    b.chain_mut().bus_mut().broken = true;
+    for now in 21..=29 {
+        b.tick(now);
+        assert!(!b.chain_dead(), "{} failed ticks", now - 20);
+    }
+    b.tick(30);
+    assert!(b.chain_dead());
+    assert_eq!(b.diag.chain_errors, 10);
+    // One good tick ends it.
+    b.chain_mut().bus_mut().broken = false;
+    b.tick(31);
+    assert!(!b.chain_dead());
+}

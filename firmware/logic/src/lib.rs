@@ -1,15 +1,22 @@
 //! stepbridge logic: every behaviour of the bridge, with no HAL, no RTIC and
 //! no allocation, so the same code runs on the STM32F405 and in `cargo test`.
 //!
-//! Layers (each depends only on the ones above it in this list):
+//! Layers, each depending only on the layers listed before it:
 //! * [`powerstep`] — powerSTEP01 register map, commands, STATUS, units, and
 //!   the daisy-chain owner that schedules every SPI byte.
-//! * [`motion`] — trapezoidal profile generator (and axis output stage).
-//! * `sim` (feature `sim`) — a byte-accurate powerSTEP01 and chain model used
-//!   by host tests and by the QEMU image.
-//!
-//! Later layers (motion, postep, transport, bridge) are listed as missing in
-//! the README until they exist.
+//! * [`motion`] — the trapezoidal profile generator and the axis output
+//!   stage (setpoints → chain commands, read-back, landing, chip setup).
+//! * [`postep60`] — one emulated PoStep60 per axis: settings, modes, faults,
+//!   currents, the persistence image.
+//! * [`transport`] — bytes ↔ PoStep60 commands for each bus (I2C, Modbus
+//!   RTU); knows no hardware and not the bridge.
+//! * [`persist`] — the power-cut-safe settings store over any NOR flash.
+//! * [`bridge`] — the object the firmware owns: `tick(now)` for the control
+//!   loop, requests and queries for the buses, and the adapters that connect
+//!   each transport to the device models.
+//! * [`sim`] (this crate's tests; feature `sim` for host-tests and the QEMU
+//!   image) — a byte-accurate powerSTEP01 and chain model, flash with power
+//!   cuts, and the virtual clock of simulated control loops.
 #![cfg_attr(not(test), no_std)]
 #![forbid(unsafe_code)]
 #![warn(missing_debug_implementations)]

@@ -107,6 +107,8 @@ impl Powerstep01 {
             }
             Fault::ThermalNormal => self.th_cond = 0,
             Fault::Stall => self.stall = true,
+            Fault::AdcinLow => self.adcin_low = true,
+            Fault::AdcinNormal => self.adcin_low = false,
             Fault::Dead(_) | Fault::Revive => {}
         }
     }

@@ -82,8 +82,9 @@
 //!    current condition. UVLO dips, overcurrent and stall are modelled as
 //!    events (their condition is gone once injected), thermal as a persisting
 //!    condition ([`Fault::ThermalNormal`] ends it). TH_STATUS is treated as
-//!    latched (facts doc: UNCONFIRMED). UVLO_ADC always reads inactive (ADCIN
-//!    fine); ADC_OUT keeps its table reset value.
+//!    latched (facts doc: UNCONFIRMED). UVLO_ADC follows the ADCIN condition
+//!    ([`Fault::AdcinLow`] / [`Fault::AdcinNormal`]) and is not latched
+//!    (UNCONFIRMED); ADC_OUT keeps its table reset value.
 //! 4. **Stall** asserts STALL_A (bit 14, ST naming) only; it does not stop
 //!    the motor (the chip only flags it).
 //! 5. **Bridge lock:** after an overcurrent with CONFIG.OC_SD = 1, and while
@@ -169,6 +170,11 @@ pub enum Fault {
     ThermalNormal,
     /// Stall detected: STALL_A latched.
     Stall,
+    /// The ADCIN input drops below its threshold (an unused ADCIN may do so
+    /// for good): UVLO_ADC reads asserted while it lasts.
+    AdcinLow,
+    /// ADCIN back above its threshold.
+    AdcinNormal,
     /// The device stops working: SDO stuck at this byte, input ignored.
     Dead(u8),
     /// Undo [`Fault::Dead`].
@@ -249,6 +255,8 @@ pub struct Powerstep01 {
     ocd_lock: bool,
     /// STALL_A latched (asserted).
     stall: bool,
+    /// ADCIN below its undervoltage threshold (UVLO_ADC, a condition).
+    adcin_low: bool,
     /// Thermal condition now (0..=3) and as reported (latched).
     th_cond: u8,
     th_latched: u8,
@@ -303,6 +311,7 @@ impl Powerstep01 {
             ocd: false,
             ocd_lock: false,
             stall: false,
+            adcin_low: false,
             th_cond: 0,
             th_latched: 0,
             dead: None,
@@ -528,7 +537,10 @@ impl Powerstep01 {
 
     /// STATUS as GetParam(STATUS) reads it (nothing is cleared).
     pub fn status(&self) -> Status {
-        let mut s: u16 = bits::UVLO_ADC | bits::STALL_B;
+        let mut s: u16 = bits::STALL_B;
+        if !self.adcin_low {
+            s |= bits::UVLO_ADC;
+        }
         if self.hiz {
             s |= bits::HIZ;
         }
