@@ -334,7 +334,13 @@ pub fn command_of(req: &Request) -> Option<u8> {
         Request::SetZero => 0x5E,
         Request::Stop => 0x5F,
         Request::SystemReset => 0x60,
-        Request::Loopback(_) | Request::SoftStop => return None,
+        Request::Loopback(_)
+        | Request::SoftStop
+        | Request::SetModeUsb(_)
+        | Request::SetDriverRegisters(_)
+        | Request::StepDir { .. }
+        | Request::Trajectory(_)
+        | Request::SetName(_) => return None,
     })
 }
 
@@ -347,6 +353,10 @@ pub fn may_move(req: &Request) -> bool {
             | Request::SetMode(_)
             | Request::SetInvert(_)
             | Request::SoftStop
+            | Request::SetModeUsb(_)
+            | Request::SetDriverRegisters(_)
+            | Request::StepDir { .. }
+            | Request::Trajectory(_)
     )
 }
 

@@ -309,7 +309,7 @@ impl Truth {
 /// register holds (beyond the chip in coarse step modes), or a value from
 /// 100 full steps/s (500 full steps/s²) up, in the axis's step mode.
 fn limits_request(rng: &mut Rng, mode: u8) -> Request {
-    let scaled = |full: i64| (full << mode).min(65_535) as u16;
+    let scaled = |full: i64| (full << mode).min(65_535) as u32;
     let high = rng.below(3) == 0;
     match rng.below(3) {
         0 => Request::SetMaxSpeed(if high {
@@ -437,10 +437,10 @@ fn sequence(t: &mut Truth, rng: &mut Rng, seq: usize, counts: &mut [u64; 6]) {
     if rng.below(4) == 0 {
         for k in 0..n {
             let s = 1u32 << t.mode[k];
-            let v = (2000 * s).min(65_535) as u16;
+            let v = (2000 * s).min(65_535);
             t.request(k, Request::SetMaxSpeed(v));
-            t.request(k, Request::SetAcceleration((20_000 * s).min(65_535) as u16));
-            t.request(k, Request::SetDeceleration((20_000 * s).min(65_535) as u16));
+            t.request(k, Request::SetAcceleration((20_000 * s).min(65_535)));
+            t.request(k, Request::SetDeceleration((20_000 * s).min(65_535)));
         }
     }
 }

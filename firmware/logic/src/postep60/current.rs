@@ -49,6 +49,17 @@ impl Current {
         }
     }
 
+    /// The same current with Ai at most `max_ai` (Tq shifted down, rounded
+    /// down): for encodings that only hold Ai 0..=3 (the DRV8711's ISGAIN).
+    pub const fn with_ai_at_most(self, max_ai: u8) -> Current {
+        if self.ai <= max_ai {
+            return self;
+        }
+        let shift = self.ai - max_ai;
+        let tq = if shift >= 8 { 0 } else { self.tq >> shift };
+        Current { tq, ai: max_ai }
+    }
+
     pub const fn to_bytes(self) -> [u8; 2] {
         [self.tq, self.ai]
     }

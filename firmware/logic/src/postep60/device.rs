@@ -38,9 +38,13 @@
 
 use super::board::Board;
 use super::current::Current;
-use super::settings::{AxisSettings, DriverMode, TEMPERATURE_LIMIT_MAX};
+use super::drv8711::{Drv8711Regs, Mapped};
+use super::settings::{AxisSettings, DriverMode, NAME_LEN, TEMPERATURE_LIMIT_MAX};
 use crate::motion::{Axis, Limits};
 use crate::powerstep::status::ThermalStatus;
+
+/// The clock of USB 0x90's StepValue: step frequency = 480 000 Hz / StepValue.
+pub const STEP_DIR_CLOCK_HZ: u32 = 480_000;
 
 /// Idle current after this long without motion (manual 7.2).
 pub const IDLE_AFTER_MS: u64 = 10_000;
@@ -59,6 +63,8 @@ pub mod fault {
     pub const STDLAT: u8 = 1 << 7;
     /// Faults that stop the axis until reset.
     pub const STOPPING: u8 = OTS | AOCP | BOCP | APDF | BPDF | UVLO;
+    /// The latched bits a DRV8711 STATUS write of 0 clears.
+    pub const STOPPING_AND_STALL_LATCH: u8 = STOPPING | STDLAT;
 }
 
 /// Driver status (manual 8.3.10).
@@ -100,11 +106,13 @@ pub enum Request {
     WriteSettings,
     /// 0x50.
     SetPosition(i32),
-    SetMaxSpeed(u16),
-    SetAcceleration(u16),
-    SetDeceleration(u16),
-    /// 0x54.
-    SetRequestedSpeed(u16),
+    /// 0x51–0x53 (16 bits on I2C and Modbus, 32 on USB): logical steps/s,
+    /// steps/s²; clamped to what the chip can follow.
+    SetMaxSpeed(u32),
+    SetAcceleration(u32),
+    SetDeceleration(u32),
+    /// 0x54 (USB: 0xB1 bytes 48..51).
+    SetRequestedSpeed(u32),
     /// 0x55: bit 0.
     SetInvert(u8),
     /// 0x5E.
@@ -115,6 +123,39 @@ pub enum Request {
     SystemReset,
     /// Extension: decelerate to a stop with the deceleration ramp.
     SoftStop,
+    /// USB 0x80 byte 37 (CONFIG_SET): any mode 1..=6; 2 (step control) is
+    /// accepted here, 3 (DC) is not.
+    SetModeUsb(u8),
+    /// USB 0x80 bytes 20..35: the DRV8711 register image.
+    SetDriverRegisters(Drv8711Regs),
+    /// USB 0x90 in mode 2: run at 480 000 / `step_value` steps/s (0 stops)
+    /// in the direction `reverse` gives (inverted again by CTRL.RDIR).
+    StepDir {
+        step_value: u32,
+        reverse: bool,
+    },
+    /// USB 0xB1: the trajectory profile, all at once.
+    Trajectory(Trajectory),
+    /// USB 0xC0: the custom name.
+    SetName([u8; NAME_LEN]),
+}
+
+/// USB 0xB1 Write trajectory data.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Trajectory {
+    /// Byte 2: 0 trajectory (mode 4), 1 BINx (mode 5), 2 auto run (mode 6).
+    pub profile: u8,
+    pub final_position: i32,
+    pub max_speed: u32,
+    pub acc: u32,
+    pub dec: u32,
+    pub end_switch: bool,
+    pub end_switch_nc: bool,
+    pub invert: bool,
+    pub bin1_steps: i32,
+    pub bin2_steps: i32,
+    pub requested_speed: u32,
 }
 
 /// A PoStep60 read.
@@ -174,6 +215,9 @@ pub enum CommandError {
     /// The bridge is saving settings (flash programming stalls the CPU) or an
     /// axis is moving when Write settings arrives: try again at rest.
     Busy,
+    /// The bridge runs in its boot mode (after USB 0x02): no motion, no
+    /// settings changes until the application is restarted.
+    BootMode,
 }
 
 /// What the bridge must do after a request succeeded.
@@ -310,8 +354,7 @@ impl Device {
                 self.auto_started = true;
                 if self.settings.mode == DriverMode::AutoRun && self.blocked().is_ok() {
                     // Power-up: max speed applies, not the requested speed (7.5.3).
-                    let v = i32::try_from(self.settings.max_speed).unwrap_or(i32::MAX);
-                    self.run_auto(axis, v);
+                    self.run_auto(axis, self.settings.max_speed);
                 }
             }
         }
@@ -413,9 +456,43 @@ impl Device {
         }
     }
 
-    fn run_auto(&mut self, axis: &mut Axis, speed: i32) {
+    fn run_auto(&mut self, axis: &mut Axis, speed: u32) {
+        let speed = i32::try_from(speed).unwrap_or(i32::MAX);
         let v = if self.settings.invert { -speed } else { speed };
         axis.run_at(v);
+    }
+
+    /// The mode change of 0x05 (and of USB's CONFIG_SET): leaving auto run
+    /// soft-stops, entering it runs at the requested speed, entering step
+    /// control stands still until 0x90.
+    fn set_mode(&mut self, m: DriverMode, axis: &mut Axis) {
+        let was = self.settings.mode;
+        self.settings.mode = m;
+        if was == m {
+            return;
+        }
+        if matches!(was, DriverMode::AutoRun | DriverMode::StepControl) {
+            axis.soft_stop();
+        }
+        if m == DriverMode::AutoRun && self.blocked().is_ok() {
+            self.run_auto(axis, self.settings.requested_speed);
+        }
+    }
+
+    /// The DRV8711 image a PoStep60 would show now (USB 0x81, 0x85).
+    pub fn driver_registers(&self) -> Drv8711Regs {
+        self.settings.drv.live(&Mapped {
+            enable: self.running,
+            reverse_step_dir: self.settings.drv.mapped().reverse_step_dir,
+            step_mode: Some(self.settings.step_mode),
+            full_scale: self.settings.full_scale,
+            status: self.faults,
+        })
+    }
+
+    /// Whether the axis runs (not asleep).
+    pub fn is_running(&self) -> bool {
+        self.running
     }
 
     fn refuse(&mut self, e: CommandError) -> Result<Effect, CommandError> {
@@ -445,31 +522,25 @@ impl Device {
             Request::SetAddress { current, new } => {
                 return Ok(Effect::SetAddress { current, new });
             }
-            Request::SetMode(code) => match DriverMode::from_code(code) {
-                Some(DriverMode::External) if !board.step_dir_routed => {
-                    return self.refuse(CommandError::Unsupported)
-                }
-                Some(DriverMode::DcMotor) => return self.refuse(CommandError::Unsupported),
-                Some(
-                    m @ (DriverMode::External
-                    | DriverMode::Position
-                    | DriverMode::BinButtons
-                    | DriverMode::AutoRun),
-                ) => {
-                    let was = self.settings.mode;
-                    self.settings.mode = m;
-                    if was == DriverMode::AutoRun && m != DriverMode::AutoRun {
-                        axis.soft_stop();
+            Request::SetMode(code) | Request::SetModeUsb(code) => {
+                let usb = matches!(req, Request::SetModeUsb(_));
+                match DriverMode::from_code(code) {
+                    Some(DriverMode::External) if !board.step_dir_routed => {
+                        return self.refuse(CommandError::Unsupported)
                     }
-                    if m == DriverMode::AutoRun
-                        && was != DriverMode::AutoRun
-                        && self.blocked().is_ok()
-                    {
-                        self.run_auto(axis, i32::from(self.settings.requested_speed));
+                    Some(DriverMode::DcMotor) => return self.refuse(CommandError::Unsupported),
+                    Some(DriverMode::StepControl) if usb => {
+                        self.set_mode(DriverMode::StepControl, axis)
                     }
+                    Some(
+                        m @ (DriverMode::External
+                        | DriverMode::Position
+                        | DriverMode::BinButtons
+                        | DriverMode::AutoRun),
+                    ) => self.set_mode(m, axis),
+                    _ => return self.refuse(CommandError::Ignored),
                 }
-                _ => return self.refuse(CommandError::Ignored),
-            },
+            }
             Request::SetPwm => return self.refuse(CommandError::Unsupported),
             Request::SetFullScaleCurrent(c) => self.settings.full_scale = c.clamped(limit),
             Request::SetIdleCurrent(c) => self.settings.idle = c.clamped(limit),
@@ -501,15 +572,15 @@ impl Device {
                 axis.move_to(i64::from(p));
             }
             Request::SetMaxSpeed(v) => {
-                self.settings.max_speed = u32::from(v);
+                self.settings.max_speed = v;
                 self.clamp_limits(axis);
             }
             Request::SetAcceleration(v) => {
-                self.settings.acc = u32::from(v);
+                self.settings.acc = v;
                 self.clamp_limits(axis);
             }
             Request::SetDeceleration(v) => {
-                self.settings.dec = u32::from(v);
+                self.settings.dec = v;
                 self.clamp_limits(axis);
             }
             Request::SetRequestedSpeed(v) => {
@@ -520,7 +591,7 @@ impl Device {
                     return self.refuse(e);
                 }
                 self.settings.requested_speed = v;
-                self.run_auto(axis, i32::from(v));
+                self.run_auto(axis, v);
             }
             Request::SetInvert(b) => {
                 if self.settings.mode != DriverMode::AutoRun {
@@ -528,14 +599,104 @@ impl Device {
                 }
                 self.settings.invert = b & 1 != 0;
                 if self.blocked().is_ok() && !axis.profile().is_settled() {
-                    let v = i32::from(self.settings.requested_speed);
-                    self.run_auto(axis, v);
+                    self.run_auto(axis, self.settings.requested_speed);
                 }
             }
             Request::SetZero => axis.set_zero(),
             Request::Stop => axis.stop_now(),
             Request::SoftStop => axis.soft_stop(),
             Request::SystemReset => return Ok(Effect::SystemReset),
+            Request::SetDriverRegisters(regs) => {
+                return self.set_driver_registers(regs, axis, board)
+            }
+            Request::StepDir {
+                step_value,
+                reverse,
+            } => {
+                if self.settings.mode != DriverMode::StepControl {
+                    return self.refuse(CommandError::WrongMode);
+                }
+                if let Err(e) = self.blocked() {
+                    return self.refuse(e);
+                }
+                let reverse = reverse != self.settings.drv.mapped().reverse_step_dir;
+                // Step frequency = 480 000 Hz / StepValue (manual 10.2.11); 0 stops.
+                match STEP_DIR_CLOCK_HZ.checked_div(step_value) {
+                    None => axis.soft_stop(),
+                    Some(f) => {
+                        let v = i32::try_from(f).unwrap_or(i32::MAX);
+                        axis.run_at(if reverse { -v } else { v });
+                    }
+                }
+            }
+            Request::Trajectory(t) => return self.trajectory(t, axis),
+            Request::SetName(name) => self.settings.name = name,
+        }
+        Ok(Effect::None)
+    }
+
+    /// USB 0x80's register image: the mapped fields take effect (step mode,
+    /// full-scale current, run/sleep, faults cleared by writing STATUS 0);
+    /// the rest is stored.
+    fn set_driver_registers(
+        &mut self,
+        regs: Drv8711Regs,
+        axis: &mut Axis,
+        board: &Board,
+    ) -> Result<Effect, CommandError> {
+        let m = regs.mapped();
+        self.settings.drv = regs.stored();
+        self.settings.full_scale = m.full_scale.clamped(board.current_limit_ma);
+        if let Some(mode) = m.step_mode {
+            self.settings.step_mode = mode;
+            axis.set_logical_shift(mode);
+            self.clamp_limits(axis);
+        }
+        // DRV8711: a latched STATUS bit is cleared by writing 0 to it.
+        self.faults &= m.status | !fault::STOPPING_AND_STALL_LATCH;
+        if m.enable && !self.running {
+            self.running = true;
+            axis.wake();
+        } else if !m.enable && self.running {
+            self.running = false;
+            axis.sleep();
+        }
+        Ok(Effect::None)
+    }
+
+    /// USB 0xB1: the profile selector picks the mode; limits, end switch,
+    /// invert, BINx steps and requested speed are stored; then the mode's
+    /// motion starts: trajectory moves to the final position, auto run runs
+    /// at the requested speed, BINx waits for a button.
+    fn trajectory(&mut self, t: Trajectory, axis: &mut Axis) -> Result<Effect, CommandError> {
+        let mode = match t.profile {
+            0 => DriverMode::Position,
+            1 => DriverMode::BinButtons,
+            2 => DriverMode::AutoRun,
+            _ => return self.refuse(CommandError::Ignored),
+        };
+        let s = &mut self.settings;
+        s.max_speed = t.max_speed;
+        s.acc = t.acc;
+        s.dec = t.dec;
+        s.end_switch = t.end_switch;
+        s.end_switch_nc = t.end_switch_nc;
+        s.invert = t.invert;
+        s.bin1_steps = t.bin1_steps;
+        s.bin2_steps = t.bin2_steps;
+        s.requested_speed = t.requested_speed;
+        self.clamp_limits(axis);
+        let was = self.settings.mode;
+        self.set_mode(mode, axis);
+        if let Err(e) = self.blocked() {
+            return self.refuse(e);
+        }
+        match mode {
+            DriverMode::Position => axis.move_to(i64::from(t.final_position)),
+            DriverMode::AutoRun if was == DriverMode::AutoRun => {
+                self.run_auto(axis, self.settings.requested_speed)
+            }
+            _ => {}
         }
         Ok(Effect::None)
     }
@@ -608,7 +769,7 @@ impl Device {
             Query::CurrentSpeed => Value::U16(
                 u16::try_from(axis.profile().velocity().unsigned_abs()).unwrap_or(u16::MAX),
             ),
-            Query::RequestedSpeed => Value::U16(s.requested_speed),
+            Query::RequestedSpeed => sat16(s.requested_speed),
             Query::Invert => Value::U8(u8::from(s.invert)),
         }
     }

@@ -5,6 +5,7 @@ pub mod analog;
 pub mod board;
 pub mod current;
 pub mod device;
+pub mod drv8711;
 pub mod settings;
 
 pub use board::Board;

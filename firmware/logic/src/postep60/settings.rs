@@ -7,6 +7,7 @@
 //! torn data, so an invalid field means a different firmware wrote it).
 
 use super::current::Current;
+use super::drv8711::{Drv8711Regs, REGISTERS as DRV_REGISTERS};
 use crate::powerstep::chain::MAX_DEVICES;
 
 /// PoStep60 driver modes (manual 8.3.11).
@@ -108,8 +109,9 @@ pub struct AxisSettings {
     pub max_speed: u32,
     pub acc: u32,
     pub dec: u32,
-    /// Auto run requested speed, steps/s.
-    pub requested_speed: u16,
+    /// Auto run requested speed, steps/s (USB writes 32 bits; I2C and
+    /// Modbus 16).
+    pub requested_speed: u32,
     pub invert: bool,
     pub end_switch: bool,
     /// End switch is normally closed (else normally open).
@@ -117,6 +119,8 @@ pub struct AxisSettings {
     pub bin1_steps: i32,
     pub bin2_steps: i32,
     pub name: [u8; NAME_LEN],
+    /// The DRV8711 register image as stored (USB 0x80; see `drv8711`).
+    pub drv: Drv8711Regs,
 }
 
 /// Highest temperature limit (USB 0x80 byte 38: "max.: 120").
@@ -141,9 +145,13 @@ impl AxisSettings {
         bin1_steps: 100,
         bin2_steps: -100,
         name: *b"stepbridge axis\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0",
+        drv: Drv8711Regs::RESET,
     };
 
-    const RECORD: usize = 2 * 3 + 1 + 1 + 1 + 4 * 3 + 2 + 1 + 4 * 2 + NAME_LEN;
+    /// Bytes of an axis record in image format 1 (16-bit requested speed, no
+    /// DRV8711 image) and in format 2.
+    const RECORD_V1: usize = 2 * 3 + 1 + 1 + 1 + 4 * 3 + 2 + 1 + 4 * 2 + NAME_LEN;
+    const RECORD: usize = Self::RECORD_V1 + 2 + 2 * DRV_REGISTERS;
 
     fn encode(&self, out: &mut [u8]) {
         let mut w = Writer { out, at: 0 };
@@ -162,9 +170,13 @@ impl AxisSettings {
         w.bytes(&self.bin1_steps.to_le_bytes());
         w.bytes(&self.bin2_steps.to_le_bytes());
         w.bytes(&self.name);
+        for r in self.drv.0 {
+            w.bytes(&r.to_le_bytes());
+        }
     }
 
-    fn decode(input: &[u8]) -> Option<AxisSettings> {
+    /// Decode a record of image format `format` (1 or 2).
+    fn decode(input: &[u8], format: u8) -> Option<AxisSettings> {
         let mut r = Reader { input, at: 0 };
         let mut current = || -> Option<Current> {
             let c = Current {
@@ -182,12 +194,22 @@ impl AxisSettings {
         let max_speed = r.u32()?;
         let acc = r.u32()?;
         let dec = r.u32()?;
-        let requested_speed = r.u16()?;
+        let requested_speed = if format == 1 {
+            u32::from(r.u16()?)
+        } else {
+            r.u32()?
+        };
         let flags = r.u8().filter(|f| *f < 8)?;
         let bin1_steps = r.u32()? as i32;
         let bin2_steps = r.u32()? as i32;
         let mut name = [0u8; NAME_LEN];
         name.copy_from_slice(r.take(NAME_LEN)?);
+        let mut drv = Drv8711Regs::RESET;
+        if format >= 2 {
+            for slot in drv.0.iter_mut() {
+                *slot = r.u16().filter(|v| *v <= 0x0FFF)?;
+            }
+        }
         Some(AxisSettings {
             full_scale,
             idle,
@@ -205,6 +227,7 @@ impl AxisSettings {
             bin1_steps,
             bin2_steps,
             name,
+            drv,
         })
     }
 }
@@ -218,10 +241,13 @@ pub struct Settings {
     pub axes: [AxisSettings; MAX_DEVICES],
 }
 
-/// Image format written by this firmware.
-pub const IMAGE_FORMAT: u8 = 1;
+/// Image format written by this firmware. Format 1 (without the DRV8711
+/// image, 16-bit requested speed) still loads.
+pub const IMAGE_FORMAT: u8 = 2;
 /// Bytes of a settings image.
 pub const IMAGE_LEN: usize = 3 + MAX_DEVICES * AxisSettings::RECORD;
+/// Bytes of a format-1 image.
+pub const IMAGE_LEN_V1: usize = 3 + MAX_DEVICES * AxisSettings::RECORD_V1;
 const _: () = assert!(
     IMAGE_LEN <= crate::persist::MAX_IMAGE,
     "image must fit the store"
@@ -259,10 +285,12 @@ impl Settings {
 
     pub fn from_image(image: &[u8]) -> Result<Settings, ImageError> {
         let (&format, rest) = image.split_first().ok_or(ImageError::Invalid)?;
-        if format != IMAGE_FORMAT {
-            return Err(ImageError::Format(format));
-        }
-        if image.len() != IMAGE_LEN {
+        let (len, record) = match format {
+            1 => (IMAGE_LEN_V1, AxisSettings::RECORD_V1),
+            IMAGE_FORMAT => (IMAGE_LEN, AxisSettings::RECORD),
+            other => return Err(ImageError::Format(other)),
+        };
+        if image.len() != len {
             return Err(ImageError::Invalid);
         }
         let (&base_address, rest) = rest.split_first().ok_or(ImageError::Invalid)?;
@@ -273,8 +301,8 @@ impl Settings {
         }
         let serial = Serial::from_code(serial).ok_or(ImageError::Invalid)?;
         let mut axes = [AxisSettings::FACTORY; MAX_DEVICES];
-        for (axis, chunk) in axes.iter_mut().zip(rest.chunks_exact(AxisSettings::RECORD)) {
-            *axis = AxisSettings::decode(chunk).ok_or(ImageError::Invalid)?;
+        for (axis, chunk) in axes.iter_mut().zip(rest.chunks_exact(record)) {
+            *axis = AxisSettings::decode(chunk, format).ok_or(ImageError::Invalid)?;
         }
         Ok(Settings {
             base_address,
@@ -327,6 +355,8 @@ impl<'a> Reader<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::vec;
+    use std::vec::Vec;
 
     #[test]
     fn factory_image_round_trips() {
@@ -350,13 +380,14 @@ mod tests {
             max_speed: 65_535,
             acc: 1,
             dec: 4_000_000,
-            requested_speed: 1234,
+            requested_speed: 4_000_000,
             invert: true,
             end_switch: true,
             end_switch_nc: true,
             bin1_steps: i32::MIN,
             bin2_steps: i32::MAX,
             name: [b'x'; NAME_LEN],
+            drv: Drv8711Regs([0xFFF, 0, 1, 2, 3, 4, 5, 0]),
         };
         let mut img = [0u8; IMAGE_LEN];
         s.to_image(&mut img);
@@ -368,8 +399,8 @@ mod tests {
         let mut img = [0u8; IMAGE_LEN];
         Settings::FACTORY.to_image(&mut img);
         let mut other = img;
-        other[0] = 2;
-        assert_eq!(Settings::from_image(&other), Err(ImageError::Format(2)));
+        other[0] = 3;
+        assert_eq!(Settings::from_image(&other), Err(ImageError::Format(3)));
         let mut bad_mode = img;
         bad_mode[3 + 8] = 7; // mode of axis 0 (after 3 currents, step mode, limit)
         assert_eq!(Settings::from_image(&bad_mode), Err(ImageError::Invalid));
@@ -378,6 +409,43 @@ mod tests {
             Err(ImageError::Invalid)
         );
         assert_eq!(Settings::from_image(&[]), Err(ImageError::Invalid));
+    }
+
+    /// A format-1 image as the previous firmware wrote it (built here by
+    /// hand, byte by byte, from that format's layout).
+    fn v1_image(s: &Settings) -> Vec<u8> {
+        let mut out = vec![1, s.base_address, s.serial.code()];
+        for a in s.axes.iter() {
+            for c in [a.full_scale, a.idle, a.overheat] {
+                out.extend_from_slice(&[c.tq, c.ai]);
+            }
+            out.extend_from_slice(&[a.step_mode, a.temperature_limit, a.mode.code()]);
+            for v in [a.max_speed, a.acc, a.dec] {
+                out.extend_from_slice(&v.to_le_bytes());
+            }
+            out.extend_from_slice(&(a.requested_speed as u16).to_le_bytes());
+            out.push(
+                u8::from(a.invert) | u8::from(a.end_switch) << 1 | u8::from(a.end_switch_nc) << 2,
+            );
+            out.extend_from_slice(&a.bin1_steps.to_le_bytes());
+            out.extend_from_slice(&a.bin2_steps.to_le_bytes());
+            out.extend_from_slice(&a.name);
+        }
+        out
+    }
+
+    #[test]
+    fn an_image_of_the_previous_format_still_loads() {
+        let mut s = Settings::FACTORY;
+        s.base_address = 17;
+        s.axes[1].requested_speed = 777;
+        s.axes[1].name = *b"axis one on the left bench\0\0\0\0\0\0";
+        let img = v1_image(&s);
+        assert_eq!(img.len(), IMAGE_LEN_V1);
+        let loaded = Settings::from_image(&img).expect("format 1 loads");
+        // Everything it held, and the DRV8711 image at its reset values.
+        assert_eq!(loaded, s);
+        assert_eq!(loaded.axes[1].drv, Drv8711Regs::RESET);
     }
 
     #[test]

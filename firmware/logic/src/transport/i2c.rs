@@ -263,10 +263,16 @@ fn shape(cmd: u8) -> Option<(u8, Build)> {
                 b(d, 3),
             ])))
         }),
-        0x51 => (2, |d| C::Request(Request::SetMaxSpeed(u16le(d)))),
-        0x52 => (2, |d| C::Request(Request::SetAcceleration(u16le(d)))),
-        0x53 => (2, |d| C::Request(Request::SetDeceleration(u16le(d)))),
-        0x54 => (2, |d| C::Request(Request::SetRequestedSpeed(u16le(d)))),
+        0x51 => (2, |d| C::Request(Request::SetMaxSpeed(u32::from(u16le(d))))),
+        0x52 => (2, |d| {
+            C::Request(Request::SetAcceleration(u32::from(u16le(d))))
+        }),
+        0x53 => (2, |d| {
+            C::Request(Request::SetDeceleration(u32::from(u16le(d))))
+        }),
+        0x54 => (2, |d| {
+            C::Request(Request::SetRequestedSpeed(u32::from(u16le(d))))
+        }),
         0x55 => (1, |d| C::Request(Request::SetInvert(b(d, 0)))),
         0x5E => (0, |_| C::Request(Request::SetZero)),
         0x5F => (0, |_| C::Request(Request::Stop)),

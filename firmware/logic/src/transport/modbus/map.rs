@@ -55,7 +55,8 @@ impl Exception {
             | CommandError::Faulted
             | CommandError::Unsupported
             | CommandError::BadAddress
-            | CommandError::Busy => Some(Exception::ServerDeviceFailure),
+            | CommandError::Busy
+            | CommandError::BootMode => Some(Exception::ServerDeviceFailure),
         }
     }
 }
@@ -144,10 +145,10 @@ fn shape(cmd: u8) -> Option<Shape> {
                 byte(d, 3),
             ]))
         }),
-        0x51 => Write(1, |d| R::SetMaxSpeed(register(d))),
-        0x52 => Write(1, |d| R::SetAcceleration(register(d))),
-        0x53 => Write(1, |d| R::SetDeceleration(register(d))),
-        0x54 => Write(1, |d| R::SetRequestedSpeed(register(d))),
+        0x51 => Write(1, |d| R::SetMaxSpeed(u32::from(register(d)))),
+        0x52 => Write(1, |d| R::SetAcceleration(u32::from(register(d)))),
+        0x53 => Write(1, |d| R::SetDeceleration(u32::from(register(d)))),
+        0x54 => Write(1, |d| R::SetRequestedSpeed(u32::from(register(d)))),
         0x55 => Write(1, |d| R::SetInvert(byte0(d))),
         0x5E => Write(1, |_| R::SetZero),
         0x5F => Write(1, |_| R::Stop),
