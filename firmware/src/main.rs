@@ -534,7 +534,7 @@ mod app {
         let (save, reset) = (&mut cx.shared.bridge, &mut cx.shared.rs485).lock(|b, line| {
             b.on_analog(sample);
             if line.is_sending() {
-                (false, false)
+                (false, None)
             } else {
                 (b.take_save(image), b.take_reset())
             }
@@ -546,8 +546,8 @@ mod app {
             }
             cx.shared.bridge.lock(|b| b.saved(ok));
         }
-        if reset {
-            info!("system reset requested");
+        if let Some(target) = reset {
+            info!("system reset requested ({})", target);
             cortex_m::peripheral::SCB::sys_reset();
         }
     }

@@ -6,3 +6,4 @@ pub mod modbus_bench;
 pub mod rig;
 pub mod sim_bridge;
 pub mod svg;
+pub mod usb_bench;

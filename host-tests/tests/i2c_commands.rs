@@ -2,6 +2,7 @@
 //! simulated chain: the bytes a master sends, the bytes it gets back, and
 //! what the motors do. Byte vectors follow the manual's formulas.
 
+use bridge_logic::bridge::ResetTarget;
 use bridge_logic::motion::axis::logical_to_physical;
 use bridge_logic::postep60::analog::AnalogSample;
 use bridge_logic::postep60::settings::{DriverMode, IMAGE_LEN};
@@ -551,13 +552,13 @@ fn stop_0x5f_stops_at_once_without_a_ramp() {
 #[test]
 fn system_reset_0x60_stops_every_axis_then_is_handed_out() {
     let mut b = bench();
-    assert!(!b.bridge.take_reset());
+    assert_eq!(b.bridge.take_reset(), None);
     b.write(A1, &[0x50, 0x40, 0x42, 0x0F, 0x00]);
     b.run(500);
     b.write(A0, &[0x60]);
-    assert!(!b.bridge.take_reset(), "not while axis 1 moves");
+    assert_eq!(b.bridge.take_reset(), None, "not while axis 1 moves");
     b.run(20);
-    assert!(b.bridge.take_reset());
+    assert_eq!(b.bridge.take_reset(), Some(ResetTarget::Application));
     assert_eq!(b.chip(1).speed_reg(), 0);
 }
 

@@ -4,6 +4,7 @@
 //! Registers are big-endian; the byte vectors follow the manual's tables.
 //! Factory settings: axis 0 answers id 1, axis 1 id 2, 9600 baud even parity.
 
+use bridge_logic::bridge::ResetTarget;
 use bridge_logic::motion::axis::logical_to_physical;
 use bridge_logic::postep60::settings::IMAGE_LEN;
 use bridge_logic::postep60::{Board, Settings};
@@ -561,12 +562,12 @@ fn stop_0x5f_stops_at_once_without_a_ramp() {
 #[test]
 fn system_reset_0x60_is_requested_and_answered_first() {
     let mut b = line();
-    assert!(!b.bridge.take_reset());
+    assert_eq!(b.bridge.take_reset(), None);
     assert_eq!(
         b.transact(&[0x01, 0x06, 0x00, 0x60, 0x00, 0x00, 0x89, 0xD4]),
         Some([0x01, 0x06, 0x00, 0x60, 0x00, 0x00, 0x89, 0xD4].to_vec())
     );
-    assert!(b.bridge.take_reset());
+    assert_eq!(b.bridge.take_reset(), Some(ResetTarget::Application));
 }
 
 // ------------------------------------------------------------ general ----

@@ -46,6 +46,30 @@ pub enum SettingsSource {
     FactoryUnreadable,
 }
 
+/// What the MCU restarts into after [`Bridge::take_reset`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ResetTarget {
+    /// The application, as at power-up (I2C/Modbus 0x60; USB 0x02 in boot mode).
+    Application,
+    /// The firmware's own boot mode (USB 0x02 once: the PoStep60's
+    /// "once starts the bootloader").
+    BootMode,
+    /// ST's ROM DFU bootloader (USB extension 0xDF), for `dfu-util`.
+    RomDfu,
+}
+
+/// How the firmware runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum RunMode {
+    Application,
+    /// After USB 0x02: USB answers (0x01 reports DEVICE_MODE 0xB0), every
+    /// axis is asleep (bridges off) and every request is refused
+    /// ([`CommandError::BootMode`]) until the next 0x02 restarts the application.
+    Boot,
+}
+
 /// Counters of everything that went wrong or was refused.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -62,6 +86,15 @@ pub struct Diagnostics {
     pub limit_clamps: u32,
     pub saves: u32,
     pub save_errors: u32,
+    /// USB OUT reports executed.
+    pub usb_reports: u32,
+    /// USB OUT reports ignored: wrong length, `OutDATA[63]` ≠ 0, 0xDF
+    /// without its magic.
+    pub usb_bad: u32,
+    /// USB OUT reports with an unknown command.
+    pub usb_unknown: u32,
+    /// USB responses dropped because the host did not read them in time.
+    pub usb_dropped: u32,
 }
 
 #[cfg(test)]
@@ -101,6 +134,9 @@ mod tests {
 
 mod i2c;
 mod modbus;
+mod usb;
+
+pub use usb::STREAM_PERIOD_MS;
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct Port {
@@ -147,8 +183,14 @@ pub struct Bridge<B: ChainBus> {
     save_pending: bool,
     /// An image was handed out and is being written: requests wait.
     saving: bool,
-    reset_pending: bool,
+    reset_pending: Option<ResetTarget>,
     addresses_changed: bool,
+    run_mode: RunMode,
+    /// The MCU's 96-bit unique id (USB serial number and 0x01's IAP_UID).
+    uid: [u32; 3],
+    /// The settings the store holds (USB 0x84 reads them).
+    stored: Settings,
+    usb: usb::UsbState,
     chain_error: Option<ChainError<B::Error>>,
     /// Control ticks in a row whose chain batch failed.
     failed_ticks: u32,
@@ -220,8 +262,12 @@ impl<B: ChainBus> Bridge<B> {
             ],
             save_pending: false,
             saving: false,
-            reset_pending: false,
+            reset_pending: None,
             addresses_changed: false,
+            run_mode: RunMode::Application,
+            uid: [0; 3],
+            stored: settings,
+            usb: usb::UsbState::default(),
             chain_error,
             failed_ticks: 0,
             source,
@@ -286,14 +332,51 @@ impl<B: ChainBus> Bridge<B> {
         core::mem::take(&mut self.addresses_changed)
     }
 
-    /// True once System reset was requested and every axis has stopped
-    /// (the request stops them all first): reset now.
-    pub fn take_reset(&mut self) -> bool {
-        if !self.reset_pending || !self.group.is_settled() {
-            return false;
+    /// Once a reset was requested and every axis has stopped (the request
+    /// stops them all first): what to restart into. The firmware keeps the
+    /// target across the reset and starts in boot mode or jumps to the ROM
+    /// bootloader accordingly.
+    pub fn take_reset(&mut self) -> Option<ResetTarget> {
+        if !self.group.is_settled() {
+            return None;
         }
-        self.reset_pending = false;
-        true
+        self.reset_pending.take()
+    }
+
+    /// Stop every axis at once and restart into `target` once they rest.
+    fn request_reset(&mut self, target: ResetTarget) {
+        // A reset must not leave a chip running on its last Run while the
+        // MCU restarts.
+        self.reset_pending = Some(target);
+        for i in 0..self.group.len() {
+            if let Some(a) = self.group.axis_mut(i) {
+                a.stop_now();
+            }
+        }
+    }
+
+    /// Run as the firmware's boot mode (after USB 0x02): every axis asleep,
+    /// every request refused; USB keeps answering.
+    pub fn enter_boot_mode(&mut self) {
+        self.run_mode = RunMode::Boot;
+        for (k, d) in self.devices.iter_mut().enumerate() {
+            if let Some(a) = self.group.axis_mut(k) {
+                let _ = d.apply(Request::RunSleep(0x0F), a, &self.board);
+            }
+        }
+    }
+
+    pub fn run_mode(&self) -> RunMode {
+        self.run_mode
+    }
+
+    /// The MCU's unique id (the firmware reads it at boot; QEMU has none).
+    pub fn set_unique_id(&mut self, uid: [u32; 3]) {
+        self.uid = uid;
+    }
+
+    pub fn unique_id(&self) -> [u32; 3] {
+        self.uid
     }
 
     /// The settings image to store, once a save is pending and every axis is
@@ -314,6 +397,7 @@ impl<B: ChainBus> Bridge<B> {
     pub fn saved(&mut self, ok: bool) {
         self.saving = false;
         if ok {
+            self.stored = self.settings();
             self.diag.saves = self.diag.saves.saturating_add(1);
         } else {
             self.diag.save_errors = self.diag.save_errors.saturating_add(1);
@@ -391,6 +475,10 @@ impl<B: ChainBus> Bridge<B> {
 
     /// Execute a request on axis `k` (any bus).
     pub fn request(&mut self, k: usize, req: Request) -> Result<Effect, CommandError> {
+        if self.run_mode == RunMode::Boot {
+            self.diag.refused = self.diag.refused.saturating_add(1);
+            return Err(CommandError::BootMode);
+        }
         let busy = self.saving || (req == Request::WriteSettings && !self.group.is_settled());
         if busy {
             self.diag.refused = self.diag.refused.saturating_add(1);
@@ -405,16 +493,7 @@ impl<B: ChainBus> Bridge<B> {
         self.diag.limit_clamps = self.diag.limit_clamps.saturating_add(clamped);
         match result {
             Ok(Effect::SaveSettings) => self.save_pending = true,
-            Ok(Effect::SystemReset) => {
-                // Stop every axis first: a reset must not leave a chip running
-                // on its last Run while the MCU restarts.
-                self.reset_pending = true;
-                for i in 0..self.group.len() {
-                    if let Some(a) = self.group.axis_mut(i) {
-                        a.stop_now();
-                    }
-                }
-            }
+            Ok(Effect::SystemReset) => self.request_reset(ResetTarget::Application),
             Ok(Effect::SetAddress { current, new }) => {
                 if let Err(e) = self.change_address(k, current, new) {
                     self.diag.refused = self.diag.refused.saturating_add(1);
