@@ -10,14 +10,14 @@
 #![no_main]
 
 use bridge_logic::postep60::Settings;
-use host_tests::i2c_master::Bench;
+use host_tests::i2c_bench::I2cBench;
 use libfuzzer_sys::fuzz_target;
 
 /// Commands that may legitimately start or change motion.
 const MOTION: [u8; 7] = [0x50, 0x54, 0x05, 0x55, 0x71, 0x5E, 0x70];
 
 fuzz_target!(|data: &[u8]| {
-    let mut b = Bench::new(2, Settings::FACTORY);
+    let mut b = I2cBench::new(2, Settings::FACTORY);
     let mut moved_by_command = false;
     let mut it = data.iter().copied();
     while let Some(tag) = it.next() {

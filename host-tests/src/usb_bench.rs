@@ -194,3 +194,57 @@ pub fn read<'a>(cls: &mut UsbBench<'a>, dev: &mut Host<'a>) -> Vec<u8> {
     cls.serve_in();
     dev.ep_read(cls, 1, REPORT_LEN as u16).unwrap_or_default()
 }
+
+/// OUT-report commands that may start or change motion (or stop it, which
+/// the check treats the same: the chip may then differ from "untouched").
+pub const MOTION: [u8; 9] = [0x02, 0x80, 0x83, 0x82, 0x90, 0xA1, 0xB1, 0xB2, 0xB3];
+
+/// Feed arbitrary OUT reports (and control ticks) straight to the bridge's
+/// USB entry points, 2 axes on simulated chips, and check: nothing panics;
+/// no chip moves unless a well-formed report (64 bytes, `[63]` = 0) carried
+/// a motion command; an ill-formed report gets no response. Returns the
+/// number of reports fed. The fuzz target `usb_reports` and the proptest in
+/// `usb_robustness.rs` both run this.
+///
+/// Input: ops of a tag byte (bit 0: 0 report, 1 tick), then for a report a
+/// length byte (mod 80) and that many bytes; for a tick a count of ms (mod 30).
+pub fn check_usb_stream(data: &[u8]) -> usize {
+    let mut bridge = crate::sim_bridge::new_bridge(2, Settings::FACTORY, Board::REFERENCE);
+    let mut clock = SimClock::new(TICK_US);
+    clock.run(&mut bridge, 30);
+    let mut it = data.iter().copied();
+    let mut motion = false;
+    let mut reports = 0;
+    while let Some(tag) = it.next() {
+        if tag & 1 == 0 {
+            let len = usize::from(it.next().unwrap_or(0) % 80);
+            let r: Vec<u8> = it.by_ref().take(len).collect();
+            let well_formed = r.len() == REPORT_LEN && r.last() == Some(&0);
+            if well_formed && r.get(1).is_some_and(|c| MOTION.contains(c)) {
+                motion = true;
+            }
+            let before = bridge.diag.usb_reports;
+            bridge.on_usb_report(&r, clock.now_ms());
+            reports += 1;
+            if !well_formed {
+                assert_eq!(
+                    bridge.diag.usb_reports, before,
+                    "an ill-formed report was executed"
+                );
+            }
+            while bridge.usb_next(clock.now_ms()).is_some() {
+                bridge.usb_sent();
+            }
+        } else {
+            clock.run(&mut bridge, u64::from(it.next().unwrap_or(0) % 30));
+        }
+    }
+    clock.run(&mut bridge, 30);
+    if !motion {
+        for k in 0..2 {
+            let c = crate::sim_bridge::chip(&bridge, k);
+            assert_eq!(c.abs_pos(), 0, "chip {k} moved without a motion command");
+        }
+    }
+    reports
+}
