@@ -377,8 +377,24 @@ impl<T: ModbusTarget> ModbusTarget for Recording<'_, T> {
         self.log.push((axis, req));
         self.inner.request(axis, req)
     }
-    fn query(&self, axis: usize, q: Query) -> Option<Value> {
+    fn query(&mut self, axis: usize, q: Query) -> Option<Value> {
         self.inner.query(axis, q)
+    }
+    fn ext_read(
+        &mut self,
+        axis: usize,
+        address: u16,
+        out: &mut [u16],
+    ) -> Result<(), bridge_logic::bridge::ExtError> {
+        self.inner.ext_read(axis, address, out)
+    }
+    fn ext_write(
+        &mut self,
+        axis: usize,
+        address: u16,
+        data: &[u16],
+    ) -> Result<(), bridge_logic::bridge::ExtError> {
+        self.inner.ext_write(axis, address, data)
     }
 }
 

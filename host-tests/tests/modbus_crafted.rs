@@ -177,10 +177,11 @@ fn a_write_single_register_of_the_wrong_length_is_illegal_data_value() {
 // ------------------------------------------------------ addresses (02) ----
 
 #[test]
-fn the_extension_space_answers_illegal_data_address_for_now() {
+fn addresses_the_extension_space_does_not_have_are_illegal_data_addresses() {
     let mut b = line();
+    // 0x0150: the chip has no register 0x50.
     assert_eq!(
-        b.transact(&[0x01, 0x03, 0x01, 0x14, 0x00, 0x01, 0xC5, 0xF2]),
+        b.transact(&[0x01, 0x03, 0x01, 0x50, 0x00, 0x01, 0x85, 0xE7]),
         Some([0x01, 0x83, 0x02, 0xC0, 0xF1].to_vec())
     );
     assert_eq!(

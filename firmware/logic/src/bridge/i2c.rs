@@ -3,10 +3,23 @@
 //! on an address. Unknown and short writes are counted and change nothing;
 //! a read after them returns zeros.
 
-use super::Bridge;
+use super::{Bridge, Bus, ExtError};
 use crate::postep60::{Query, Request};
 use crate::powerstep::chain::ChainBus;
-use crate::transport::i2c::{self, I2cCommand, I2cError, I2cTarget, Which, Write, RESPONSE_MAX};
+use crate::transport::i2c::{
+    self, ext_status, I2cCommand, I2cError, I2cTarget, Which, Write, EXT_MAX, RESPONSE_MAX,
+};
+
+/// The extension status byte of an outcome.
+fn status_of(r: Result<(), ExtError>) -> u8 {
+    match r {
+        Ok(()) => ext_status::OK,
+        Err(ExtError::NotYet) => ext_status::NOT_YET,
+        Err(ExtError::IllegalAddress) => ext_status::ILLEGAL_ADDRESS,
+        Err(ExtError::IllegalValue) => ext_status::ILLEGAL_VALUE,
+        Err(ExtError::Refused) => ext_status::REFUSED,
+    }
+}
 
 fn port(which: Which) -> usize {
     match which {
@@ -45,11 +58,19 @@ impl<B: ChainBus> I2cTarget for Bridge<B> {
             }
             Ok(I2cCommand::Request(r)) => {
                 // I2C has no error reply: a refused request is only counted.
-                let _ = self.request(axis, r);
+                let _ = self.request_from(Bus::I2c, axis, r);
                 Some(I2cCommand::Request(r))
+            }
+            Ok(I2cCommand::ExtWrite { address, data, len }) => {
+                let n = usize::from(len).min(EXT_MAX);
+                let r = self.ext_write(axis, address, data.get(..n).unwrap_or(&[]));
+                Some(I2cCommand::ExtStatus(status_of(r)))
             }
             Ok(other) => Some(other),
         };
+        if decoded.is_ok() {
+            self.heard(Bus::I2c);
+        }
         if let Some(port) = self.ports.get_mut(p) {
             port.last = last;
         }
@@ -74,6 +95,26 @@ impl<B: ChainBus> I2cTarget for Bridge<B> {
                 out[0] = port.axis;
                 out[1] = self.axes() as u8;
                 2
+            }
+            Some(I2cCommand::ExtRead { address, quantity }) => {
+                let n = usize::from(quantity);
+                let mut regs = [0u16; EXT_MAX];
+                let r = match regs.get_mut(..n).filter(|r| !r.is_empty()) {
+                    Some(regs) => self.ext_read(axis, address, regs),
+                    None => Err(ExtError::IllegalValue),
+                };
+                out[0] = status_of(r);
+                if r.is_err() {
+                    return 1;
+                }
+                for (pair, v) in out[1..].chunks_exact_mut(2).zip(regs.iter().take(n)) {
+                    pair.copy_from_slice(&v.to_be_bytes());
+                }
+                1 + 2 * n
+            }
+            Some(I2cCommand::ExtStatus(st)) => {
+                out[0] = st;
+                1
             }
             _ => 0,
         }

@@ -27,12 +27,13 @@ use heapless::Vec;
 
 use crate::motion::{Axis, AxisConfig, AxisGroup};
 use crate::postep60::analog::{self, AnalogSample};
-use crate::postep60::settings::{Serial, IMAGE_LEN};
+use crate::postep60::settings::{Serial, Watchdog, WatchdogAction, IMAGE_LEN, WATCHED_BUSES};
 use crate::postep60::{
     Board, CommandError, Device, Effect, Inputs, Query, Request, Settings, Value,
 };
 use crate::powerstep::chain::{Chain, ChainBus, ChainError, MAX_DEVICES};
 use crate::transport::i2c::I2cCommand;
+use crate::transport::modbus::Stats as ModbusStats;
 
 /// Where the settings in use came from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -59,6 +60,66 @@ pub enum ResetTarget {
     RomDfu,
 }
 
+/// The buses a request can come on (the communication watchdog's index).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Bus {
+    Modbus = 0,
+    I2c = 1,
+    Usb = 2,
+}
+
+/// Why the MCU last reset (from RCC_CSR, decoded by [`ResetCause::from_rcc_csr`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ResetCause {
+    Unknown = 0,
+    PowerOn = 1,
+    Pin = 2,
+    Watchdog = 3,
+    Software = 4,
+    Brownout = 5,
+}
+
+impl ResetCause {
+    /// RCC_CSR's reset flags (RM0090 7.3.21: LPWR 31, WWDG 30, IWDG 29,
+    /// SFT 28, POR 27, PIN 26, BOR 25). A power-on sets POR, PIN and BOR
+    /// together, so the more specific flags are looked at first.
+    pub const fn from_rcc_csr(csr: u32) -> ResetCause {
+        if csr & (1 << 30 | 1 << 29) != 0 {
+            ResetCause::Watchdog
+        } else if csr & 1 << 28 != 0 {
+            ResetCause::Software
+        } else if csr & 1 << 27 != 0 {
+            ResetCause::PowerOn
+        } else if csr & 1 << 25 != 0 {
+            ResetCause::Brownout
+        } else if csr & 1 << 26 != 0 {
+            ResetCause::Pin
+        } else {
+            ResetCause::Unknown
+        }
+    }
+}
+
+/// The communication watchdog's state for one bus.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct BusWatch {
+    /// When a valid request last arrived, ms.
+    last_ms: u64,
+    /// Tripped and not heard from since.
+    tripped: bool,
+    trips: u32,
+}
+
+/// Duration of the control tick as the firmware measured it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct TickTiming {
+    last_us: u32,
+    max_us: u32,
+    overruns: u32,
+}
+
 /// How the firmware runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -79,6 +140,8 @@ pub struct Diagnostics {
     /// Requests a device refused (wrong mode, asleep, faulted, ignored values…).
     pub refused: u32,
     pub chain_errors: u32,
+    /// Communication-watchdog trips, every bus together.
+    pub watchdog_trips: u32,
     /// Chip resets / undervoltages detected, every axis together (each one
     /// latched UVLO in its axis's faults and re-ran the chip's setup).
     pub chip_resets: u32,
@@ -132,9 +195,12 @@ mod tests {
     }
 }
 
+pub mod ext;
 mod i2c;
 mod modbus;
 mod usb;
+
+pub use ext::ExtError;
 
 pub use usb::STREAM_PERIOD_MS;
 
@@ -191,6 +257,24 @@ pub struct Bridge<B: ChainBus> {
     /// The settings the store holds (USB 0x84 reads them).
     stored: Settings,
     usb: usb::UsbState,
+    /// Time of the last control tick, ms.
+    now_ms: u64,
+    /// The communication watchdog: settings and state per bus.
+    watchdog: [Watchdog; WATCHED_BUSES],
+    watch: [BusWatch; WATCHED_BUSES],
+    /// Per axis: bit per bus that last started motion on it.
+    moved_by: [u8; MAX_DEVICES],
+    timing: TickTiming,
+    reset_cause: ResetCause,
+    build_id: u32,
+    /// The Modbus server's counters as last handed over, and their values
+    /// when the diagnostics were last cleared.
+    modbus: ModbusStats,
+    modbus_base: ModbusStats,
+    /// Chip resets per axis when the diagnostics were last cleared.
+    resets_base: [u32; MAX_DEVICES],
+    /// 0 no save yet, 1 the last save succeeded, 2 it failed.
+    last_save: u16,
     chain_error: Option<ChainError<B::Error>>,
     /// Control ticks in a row whose chain batch failed.
     failed_ticks: u32,
@@ -237,6 +321,7 @@ impl<B: ChainBus> Bridge<B> {
             let mut axis =
                 Axis::new(cfg, device.limits()).with_chip_config(board.config_register());
             device.clamp_limits(&mut axis);
+            device.apply_tuning(&mut axis);
             axis.energize();
             let _ = group.push(axis);
             let _ = devices.push(device);
@@ -268,6 +353,17 @@ impl<B: ChainBus> Bridge<B> {
             uid: [0; 3],
             stored: settings,
             usb: usb::UsbState::default(),
+            now_ms: 0,
+            watchdog: settings.watchdog,
+            watch: [BusWatch::default(); WATCHED_BUSES],
+            moved_by: [0; MAX_DEVICES],
+            timing: TickTiming::default(),
+            reset_cause: ResetCause::Unknown,
+            build_id: 0,
+            modbus: ModbusStats::default(),
+            modbus_base: ModbusStats::default(),
+            resets_base: [0; MAX_DEVICES],
+            last_save: 0,
             chain_error,
             failed_ticks: 0,
             source,
@@ -396,6 +492,7 @@ impl<B: ChainBus> Bridge<B> {
     /// Outcome of a save handed out by [`Bridge::take_save`].
     pub fn saved(&mut self, ok: bool) {
         self.saving = false;
+        self.last_save = if ok { 1 } else { 2 };
         if ok {
             self.stored = self.settings();
             self.diag.saves = self.diag.saves.saturating_add(1);
@@ -409,6 +506,7 @@ impl<B: ChainBus> Bridge<B> {
         let mut s = Settings {
             base_address: self.base_address,
             serial: self.serial,
+            watchdog: self.watchdog,
             ..Settings::FACTORY
         };
         for (slot, d) in s.axes.iter_mut().zip(self.devices.iter()) {
@@ -446,6 +544,8 @@ impl<B: ChainBus> Bridge<B> {
 
     /// One control tick at `now_ms`.
     pub fn tick(&mut self, now_ms: u64) {
+        self.now_ms = now_ms;
+        self.watch_buses();
         for (k, d) in self.devices.iter_mut().enumerate() {
             if let Some(a) = self.group.axis_mut(k) {
                 d.tick(now_ms, a, &self.board, self.temperature);
@@ -463,7 +563,118 @@ impl<B: ChainBus> Bridge<B> {
         self.diag.chip_resets = self
             .group
             .iter()
-            .fold(0u32, |n, a| n.saturating_add(a.chip_resets()));
+            .zip(self.resets_base.iter())
+            .fold(0u32, |n, (a, b)| {
+                n.saturating_add(a.chip_resets().wrapping_sub(*b))
+            });
+    }
+
+    /// The communication watchdog: a bus silent for longer than its
+    /// timeout (off when 0) applies its action to every axis it moved last,
+    /// once until it is heard from again.
+    fn watch_buses(&mut self) {
+        for (bus, (w, s)) in self.watchdog.iter().zip(self.watch.iter_mut()).enumerate() {
+            if w.timeout_ms == 0 || s.tripped {
+                continue;
+            }
+            if self.now_ms.saturating_sub(s.last_ms) <= u64::from(w.timeout_ms) {
+                continue;
+            }
+            s.tripped = true;
+            let bit = 1u8 << bus;
+            let mut acted = false;
+            for (k, moved) in self.moved_by.iter_mut().enumerate() {
+                if *moved & bit == 0 {
+                    continue;
+                }
+                *moved &= !bit;
+                acted = true;
+                let (Some(d), Some(a)) = (self.devices.get_mut(k), self.group.axis_mut(k)) else {
+                    continue;
+                };
+                let req = match w.action {
+                    WatchdogAction::Hold => Request::Stop,
+                    WatchdogAction::SoftStop => Request::SoftStop,
+                    WatchdogAction::HiZ => Request::RunSleep(0x0F),
+                };
+                let _ = d.apply(req, a, &self.board);
+            }
+            if acted {
+                s.trips = s.trips.saturating_add(1);
+                self.diag.watchdog_trips = self.diag.watchdog_trips.saturating_add(1);
+            }
+        }
+    }
+
+    /// Execute a request on axis `k` that came on `bus`: the watchdog hears
+    /// the bus, and notes the bus as the one that moved the axis.
+    pub fn request_from(
+        &mut self,
+        bus: Bus,
+        k: usize,
+        req: Request,
+    ) -> Result<Effect, CommandError> {
+        self.heard(bus);
+        let r = self.request(k, req);
+        let moves = matches!(
+            req,
+            Request::SetPosition(_)
+                | Request::SetRequestedSpeed(_)
+                | Request::SetMode(_)
+                | Request::SetModeUsb(_)
+                | Request::SetInvert(_)
+                | Request::StepDir { .. }
+                | Request::Trajectory(_)
+        );
+        if moves && r.is_ok() {
+            if let Some(m) = self.moved_by.get_mut(k) {
+                *m = 1 << bus as u8;
+            }
+        }
+        r
+    }
+
+    /// The control tick took `duration_us` (measured by the firmware) of a
+    /// `period_us` period: kept for the diagnostics, an overrun counted.
+    pub fn tick_timing(&mut self, duration_us: u32, period_us: u32) {
+        self.timing.last_us = duration_us;
+        self.timing.max_us = self.timing.max_us.max(duration_us);
+        if duration_us > period_us {
+            self.timing.overruns = self.timing.overruns.saturating_add(1);
+        }
+    }
+
+    pub fn set_reset_cause(&mut self, cause: ResetCause) {
+        self.reset_cause = cause;
+    }
+
+    /// The firmware's build id (diagnostics).
+    pub fn set_build_id(&mut self, id: u32) {
+        self.build_id = id;
+    }
+
+    /// The Modbus server's counters (the firmware hands them over after
+    /// every poll; they feed the diagnostics).
+    pub fn set_modbus_stats(&mut self, stats: ModbusStats) {
+        self.modbus = stats;
+    }
+
+    /// The Modbus counters since the diagnostics were last cleared.
+    pub fn modbus_stats(&self) -> ModbusStats {
+        self.modbus.since(&self.modbus_base)
+    }
+
+    /// Clear every diagnostics counter (a write to 0x0300).
+    pub fn clear_diagnostics(&mut self) {
+        self.diag = Diagnostics::default();
+        self.modbus_base = self.modbus;
+        for (b, a) in self.resets_base.iter_mut().zip(self.group.iter()) {
+            *b = a.chip_resets();
+        }
+        for w in self.watch.iter_mut() {
+            w.trips = 0;
+        }
+        self.timing = TickTiming::default();
     }
 
     /// The chain has failed for [`CHAIN_DEAD_TICKS`] ticks in a row: the

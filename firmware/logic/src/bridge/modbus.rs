@@ -7,7 +7,7 @@
 //! Write settings are deferred by the bridge itself (`take_reset`,
 //! `take_save`); the firmware acts on them once the response is out.
 
-use super::Bridge;
+use super::{Bridge, Bus, ExtError};
 use crate::postep60::{CommandError, Effect, Query, Request, Value};
 use crate::powerstep::chain::ChainBus;
 use crate::transport::modbus::{ModbusTarget, ID_MAX};
@@ -26,10 +26,21 @@ impl<B: ChainBus> ModbusTarget for Bridge<B> {
     }
 
     fn request(&mut self, axis: usize, req: Request) -> Result<Effect, CommandError> {
-        Bridge::request(self, axis, req)
+        self.request_from(Bus::Modbus, axis, req)
     }
 
-    fn query(&self, axis: usize, q: Query) -> Option<Value> {
+    fn query(&mut self, axis: usize, q: Query) -> Option<Value> {
+        self.heard(Bus::Modbus);
         Bridge::query(self, axis, q)
+    }
+
+    fn ext_read(&mut self, axis: usize, address: u16, out: &mut [u16]) -> Result<(), ExtError> {
+        self.heard(Bus::Modbus);
+        Bridge::ext_read(self, axis, address, out)
+    }
+
+    fn ext_write(&mut self, axis: usize, address: u16, data: &[u16]) -> Result<(), ExtError> {
+        self.heard(Bus::Modbus);
+        Bridge::ext_write(self, axis, address, data)
     }
 }

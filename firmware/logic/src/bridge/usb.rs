@@ -34,12 +34,12 @@
 
 use heapless::Deque;
 
-use super::{Bridge, ResetTarget, RunMode};
+use super::{Bridge, Bus, ExtError, ResetTarget, RunMode};
 use crate::postep60::drv8711::Drv8711Regs;
 use crate::postep60::settings::{DriverMode, Serial, Settings};
 use crate::postep60::{CommandError, Query, Request, Value};
 use crate::powerstep::chain::ChainBus;
-use crate::transport::usb::codec::{cmd, status, DriverSettings, InReport};
+use crate::transport::usb::codec::{cmd, status, DriverSettings, InReport, EXT_MAX};
 use crate::transport::usb::{decode, iap_uid, UsbError, UsbRequest};
 
 /// The 0xA0 stream's period: the IN endpoint's bInterval.
@@ -51,9 +51,22 @@ pub const QUEUE: usize = 4;
 const DEVICE_MODE_APPLICATION: u8 = 0xAB;
 const DEVICE_MODE_BOOT: u8 = 0xB0;
 
+/// An extension read waiting for the chip.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct PendingRead {
+    axis: u8,
+    address: u16,
+    quantity: u8,
+    since_ms: u64,
+}
+
+/// An extension read gives up after this long (status 13).
+pub const EXT_READ_TIMEOUT_MS: u64 = 50;
+
 #[derive(Clone, Debug, Default)]
 pub(super) struct UsbState {
     out: Deque<InReport, QUEUE>,
+    pending_read: Option<PendingRead>,
     /// The streamed axis and when its next report is due.
     stream: Option<(u8, u64)>,
     /// A stream report built for `usb_next`, not yet sent.
@@ -70,6 +83,16 @@ fn status_of(e: CommandError) -> u8 {
         CommandError::BadAddress => status::BAD_ADDRESS,
         CommandError::Busy => status::BUSY,
         CommandError::BootMode => status::BOOT_MODE,
+    }
+}
+
+fn ext_status(r: Result<(), ExtError>) -> u8 {
+    match r {
+        Ok(()) => status::DONE,
+        Err(ExtError::IllegalAddress) => status::ILLEGAL_ADDRESS,
+        Err(ExtError::IllegalValue) => status::ILLEGAL_VALUE,
+        Err(ExtError::Refused) => status::REFUSED,
+        Err(ExtError::NotYet) => status::TIMEOUT,
     }
 }
 
@@ -94,6 +117,7 @@ impl<B: ChainBus> Bridge<B> {
             }
         };
         self.diag.usb_reports = self.diag.usb_reports.saturating_add(1);
+        self.heard(Bus::Usb);
         let k = usize::from(axis);
         let exists = k < self.axes();
         let response = match req {
@@ -171,6 +195,30 @@ impl<B: ChainBus> Bridge<B> {
                 };
                 InReport::new(0, 0x00, axis, st)
             }
+            UsbRequest::ExtRead { address, quantity } => {
+                self.usb.pending_read = Some(PendingRead {
+                    axis,
+                    address,
+                    quantity,
+                    since_ms: now_ms,
+                });
+                match self.try_ext_read(now_ms) {
+                    Some(r) => r,
+                    None => return,
+                }
+            }
+            UsbRequest::ExtWrite {
+                address,
+                quantity,
+                data,
+            } => {
+                let n = usize::from(quantity);
+                let r = match data.get(..n).filter(|d| !d.is_empty()) {
+                    Some(d) => self.ext_write(k, address, d),
+                    None => Err(ExtError::IllegalValue),
+                };
+                InReport::new(0, cmd::EXT_WRITE, axis, ext_status(r))
+            }
             UsbRequest::ReadName => {
                 let mut r = InReport::new(0, cmd::WRITE_NAME, axis, status::DONE);
                 if let Some(d) = self.devices.get(k) {
@@ -180,6 +228,33 @@ impl<B: ChainBus> Bridge<B> {
             }
         };
         self.queue(response);
+    }
+
+    /// Answer the waiting extension read if the chip's value came back (or
+    /// the wait is over); None while it still waits.
+    fn try_ext_read(&mut self, now_ms: u64) -> Option<InReport> {
+        let p = self.usb.pending_read?;
+        let mut regs = [0u16; EXT_MAX];
+        let n = usize::from(p.quantity);
+        let r = match regs.get_mut(..n).filter(|r| !r.is_empty()) {
+            Some(regs) => self.ext_read(usize::from(p.axis), p.address, regs),
+            None => Err(ExtError::IllegalValue),
+        };
+        let st = match r {
+            Err(ExtError::NotYet) if now_ms.saturating_sub(p.since_ms) < EXT_READ_TIMEOUT_MS => {
+                return None
+            }
+            Err(ExtError::NotYet) => status::TIMEOUT,
+            other => ext_status(other),
+        };
+        self.usb.pending_read = None;
+        let mut out = InReport::new(0, cmd::EXT_READ, p.axis, st);
+        if st == status::DONE {
+            for (i, v) in regs.iter().take(n).enumerate() {
+                out.be16(16 + 2 * i, *v);
+            }
+        }
+        Some(out)
     }
 
     /// The USB bus was reset, suspended or deconfigured: the stream ends,
@@ -192,6 +267,11 @@ impl<B: ChainBus> Bridge<B> {
     /// the stream's report when due), without taking it: call
     /// [`Bridge::usb_sent`] once the endpoint took it.
     pub fn usb_next(&mut self, now_ms: u64) -> Option<&InReport> {
+        if self.usb.pending_read.is_some() {
+            if let Some(r) = self.try_ext_read(now_ms) {
+                self.queue(r);
+            }
+        }
         if self.usb.out.is_empty() && self.usb.stream_report.is_none() {
             if let Some((axis, due)) = self.usb.stream {
                 if now_ms >= due {
@@ -230,7 +310,7 @@ impl<B: ChainBus> Bridge<B> {
     }
 
     fn status(&mut self, k: usize, req: Request) -> u8 {
-        match self.request(k, req) {
+        match self.request_from(Bus::Usb, k, req) {
             Ok(_) => status::DONE,
             Err(e) => status_of(e),
         }

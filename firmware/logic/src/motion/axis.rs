@@ -60,6 +60,7 @@
 //!   bridge fault (overcurrent, thermal shutdown) stops the profile at the
 //!   read-back position and switches the bridges off.
 
+use super::homing::{Homing, HomingError, HomingParams, HomingState, Step};
 use super::profile::{Limits, Mode, Profile};
 use super::units::{self, LIMIT_CAPS};
 pub use super::units::{logical_to_physical, physical_to_logical, MAX_LOGICAL_SHIFT};
@@ -119,6 +120,8 @@ pub enum AxisState {
     Stopping,
     /// GoTo sent; waiting for not-busy on the target.
     Landing,
+    /// Running the homing sequence (`super::homing`).
+    Homing,
 }
 
 /// Why the last motion ended other than on its target.
@@ -233,6 +236,12 @@ impl ChipImage {
     fn written(&mut self, reg: Register) {
         self.dirty &= !(1 << reg.address());
     }
+
+    /// Write `reg` again (if owned) at the next chance.
+    fn touch(&mut self, reg: Register) {
+        let bit = 1u32 << reg.address();
+        self.dirty |= self.owned & bit;
+    }
 }
 
 /// Requested limits and the motion registers as programmed on the chip.
@@ -305,7 +314,30 @@ pub struct Axis {
     chip_off_for_fault: bool,
     /// Chip resets / undervoltages detected since boot.
     resets: u32,
+    /// The homing sequence (running or its last outcome).
+    homing: Option<Homing>,
+    /// Position 0 is the home switch's edge (until a chip reset, a chain
+    /// error or a stall says otherwise).
+    homed: bool,
+    /// The chip's ABS_POS frame was re-based by the chip (homing): take the
+    /// next position read as it is, not unwrapped against the last one.
+    absolute_read: bool,
+    /// A chip register read for the extension space.
+    ext_read: Option<RegRead>,
 }
+
+/// A read of a chip register asked for by the extension space.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct RegRead {
+    reg: Register,
+    /// Command index of the GetParam in this tick's batch, once sent.
+    index: Option<usize>,
+    /// The value and the tick it was read at.
+    value: Option<(u32, u64)>,
+}
+
+/// A register value read for the extension space stays good this many ticks.
+pub const REGISTER_READ_FRESH_TICKS: u64 = 20;
 
 impl Axis {
     pub fn new(cfg: AxisConfig, limits: Limits) -> Axis {
@@ -315,6 +347,9 @@ impl Axis {
         };
         let mut image = ChipImage::new();
         image.set(Register::StepMode, u32::from(cfg.step_mode().to_reg()));
+        // The Run setpoints need a start speed of 0 (homing changes it for
+        // ReleaseSW and puts it back).
+        image.set(Register::MinSpeed, 0);
         let mut axis = Axis {
             cfg,
             profile: Profile::new(cfg.tick_us, limits),
@@ -351,6 +386,10 @@ impl Axis {
             asleep: false,
             chip_off_for_fault: false,
             resets: 0,
+            homing: None,
+            homed: false,
+            absolute_read: false,
+            ext_read: None,
         };
         axis.refresh_limits();
         axis
@@ -489,6 +528,9 @@ impl Axis {
     /// the position where the chip stopped. Motion commands are ignored until
     /// [`Axis::wake`].
     pub fn sleep(&mut self) {
+        if self.state == AxisState::Homing {
+            self.end_homing(HomingError::Aborted);
+        }
         self.asleep = true;
         self.idle_command = None;
         self.profile.stop_now();
@@ -513,6 +555,79 @@ impl Axis {
 
     pub fn is_asleep(&self) -> bool {
         self.asleep
+    }
+
+    // --------------------------------------------------------------- homing
+
+    /// Start homing (`super::homing`). The switch's NO/NC wiring is in
+    /// `params`. Refused unless the axis rests, is configured and awake.
+    pub fn start_homing(&mut self, params: HomingParams) -> Result<(), HomingError> {
+        if self.state != AxisState::Idle || !self.profile.is_settled() || self.asleep {
+            return Err(HomingError::NotReady);
+        }
+        let closed = self.rb.status.switch_closed();
+        let pressed = closed != params.nc;
+        self.homed = false;
+        self.fault = None;
+        self.homing = Some(Homing::start(params, pressed, self.rb.chip_pos, self.tick));
+        self.state = AxisState::Homing;
+        Ok(())
+    }
+
+    /// Homing's state (Idle if it never ran).
+    pub fn homing_state(&self) -> HomingState {
+        self.homing.map_or(HomingState::Idle, |h| h.state)
+    }
+
+    /// Position 0 is the home switch's edge.
+    pub fn is_homed(&self) -> bool {
+        self.homed
+    }
+
+    pub fn is_homing(&self) -> bool {
+        self.state == AxisState::Homing
+    }
+
+    /// End a running homing sequence with `e` (the caller stops the chip).
+    fn end_homing(&mut self, e: HomingError) {
+        if let Some(h) = self.homing.as_mut() {
+            if h.state.is_running() {
+                // The release may already have re-based ABS_POS.
+                if h.state == HomingState::Releasing {
+                    self.absolute_read = true;
+                }
+                h.state = HomingState::Failed(e);
+            }
+        }
+        // MIN_SPEED back to what the image says.
+        self.image.touch(Register::MinSpeed);
+    }
+
+    // ------------------------------------------------- chip register reads
+
+    /// The value of chip register `reg` for the extension space: `Some` once
+    /// a GetParam asked for by an earlier call came back (within
+    /// [`REGISTER_READ_FRESH_TICKS`]); `None` means "asked, try again after
+    /// the next control tick". GetParam(STATUS) clears no latched flag.
+    pub fn read_register(&mut self, reg: Register) -> Option<u32> {
+        if let Some(r) = self.ext_read {
+            if r.reg == reg {
+                if let Some((v, at)) = r.value {
+                    if self.tick.saturating_sub(at) <= REGISTER_READ_FRESH_TICKS {
+                        self.ext_read = None;
+                        return Some(v);
+                    }
+                } else {
+                    return None;
+                }
+            }
+        }
+        self.ext_read = Some(RegRead {
+            reg,
+            index: None,
+            value: None,
+        });
+        None
     }
 
     /// Change the logical step mode. A moving axis stops at once; the
@@ -542,6 +657,11 @@ impl Axis {
     /// Decelerate to a stop with the profile's deceleration. An axis at rest,
     /// or already stopping at once, has nothing to do.
     pub fn soft_stop(&mut self) {
+        if self.state == AxisState::Homing {
+            self.end_homing(HomingError::Aborted);
+            self.stop_then(AfterStop::Hold, Command::SoftStop);
+            return;
+        }
         if self.state == AxisState::Stopping && self.stop.after == AfterStop::Hold {
             self.profile.stop_now();
         } else if !self.profile.is_settled() {
@@ -552,6 +672,9 @@ impl Axis {
     /// (no landing move: after an end switch that could go back into it).
     /// An axis that is asleep stays in HiZ.
     pub fn stop_now(&mut self) {
+        if self.state == AxisState::Homing {
+            self.end_homing(HomingError::Aborted);
+        }
         self.profile.stop_now();
         self.stop_then(AfterStop::Hold, self.stop_command());
     }
@@ -559,6 +682,10 @@ impl Axis {
     /// effect at once: the position reads 0 and a target given from now on
     /// is in the new coordinates.
     pub fn set_zero(&mut self) {
+        if self.state == AxisState::Homing {
+            self.end_homing(HomingError::Aborted);
+        }
+        self.homed = false;
         self.profile.set_position(0);
         if matches!(self.state, AxisState::Setup(_)) {
             // The setup writes ABS_POS = chip_pos at its end.
@@ -585,6 +712,10 @@ impl Axis {
     /// position), then hold again unless asleep.
     pub fn on_chain_error(&mut self) {
         self.fault = Some(AxisFault::ChainError);
+        if self.state == AxisState::Homing {
+            self.end_homing(HomingError::Fault);
+        }
+        self.homed = false;
         self.restart_setup();
         if !self.asleep {
             self.idle_command = Some(Command::HardStop);
@@ -631,6 +762,12 @@ impl Axis {
 
     /// Stop the profile where the chip is and set the chip up again.
     fn restart_setup(&mut self) {
+        if self.state == AxisState::Homing {
+            self.end_homing(HomingError::Fault);
+        }
+        self.homed = false;
+        self.absolute_read = false;
+        self.ext_read = None;
         if self.stop.zero {
             // An accepted Set zero stays in effect.
             self.rb.chip_pos = 0;
@@ -695,19 +832,40 @@ impl Axis {
             ok
         };
         self.plan_commands(&mut counted);
-        // Spare slots carry configuration registers writable at any time
-        // (currents, thresholds) that changed.
-        if self.is_configured() {
-            use crate::powerstep::registers::Access;
-            while used < MAX_COMMANDS {
-                let Some((reg, value)) = self.image.next(|r| r.access() == Access::Always) else {
-                    break;
-                };
-                if !emit(Command::SetParam(reg, value)) {
-                    break;
+        if !self.is_configured() {
+            return;
+        }
+        // Spare slots carry configuration registers that changed: those
+        // writable at any time always; WS ones only while the chip rests and
+        // nothing starts it this tick; WH ones only in HiZ too. So the chip
+        // never has to refuse one.
+        use crate::powerstep::registers::Access;
+        let resting =
+            self.state == AxisState::Idle && self.profile.is_settled() && !self.rb.status.busy();
+        let hiz = resting && self.rb.status.hiz();
+        while used < MAX_COMMANDS {
+            let Some((reg, value)) = self.image.next(|r| match r.access() {
+                Access::Always => true,
+                Access::WhenStopped => resting,
+                Access::WhenHiZ => hiz,
+                Access::ReadOnly => false,
+            }) else {
+                break;
+            };
+            if !emit(Command::SetParam(reg, value)) {
+                break;
+            }
+            self.image.written(reg);
+            used += 1;
+        }
+        // An extension-space register read.
+        if let Some(r) = self.ext_read.as_mut() {
+            if r.value.is_none() && r.index.is_none() && used < MAX_COMMANDS {
+                let same_as_read =
+                    r.reg == Register::AbsPos && self.rb.read == Some(Read::Position);
+                if !same_as_read && emit(Command::GetParam(r.reg)) {
+                    r.index = Some(used);
                 }
-                self.image.written(reg);
-                used += 1;
             }
         }
     }
@@ -750,6 +908,7 @@ impl Axis {
             }
             AxisState::Streaming => self.stream(&mut emit),
             AxisState::Stopping => self.plan_stopping(&mut emit),
+            AxisState::Homing => self.plan_homing(&mut emit),
             AxisState::Landing => {
                 if self.confirmed_stopped() {
                     if self.rb.chip_pos == self.target_physical() {
@@ -888,6 +1047,43 @@ impl Axis {
         }
     }
 
+    fn plan_homing(&mut self, emit: &mut impl FnMut(Command) -> bool) {
+        let Some(mut h) = self.homing else {
+            self.state = AxisState::Idle;
+            return;
+        };
+        let s = self.rb.status;
+        let pressed = s.switch_closed() != h.params.nc;
+        let fresh = self.rb.status_at > self.rb.sent_at && self.rb.pos_at > self.rb.status_at;
+        let step = h.step(s.busy(), pressed, fresh, self.rb.chip_pos, self.tick);
+        self.homing = Some(h);
+        match step {
+            Step::Wait => {}
+            Step::Send(cmds) => {
+                for cmd in cmds.into_iter().flatten() {
+                    emit(cmd);
+                }
+                self.rb.sent_at = self.tick;
+            }
+            Step::Finished => {
+                // The chip rests on the home frame: hold there, exactly
+                // (the next position read is taken as it is), MIN_SPEED
+                // back to the image's value.
+                self.homed = true;
+                self.absolute_read = true;
+                self.image.touch(Register::MinSpeed);
+                self.stop.after = AfterStop::Hold;
+                self.stop.pending = None;
+                self.rb.sent_at = self.tick;
+                self.state = AxisState::Stopping;
+            }
+            Step::Fail(e) => {
+                self.end_homing(e);
+                self.stop_then(AfterStop::Hold, Command::SoftStop);
+            }
+        }
+    }
+
     /// GoTo the target. The chip takes the shortest path modulo 2²², which is
     /// the right one because the residual at landing is a few microsteps.
     fn land(&mut self, emit: &mut impl FnMut(Command) -> bool) {
@@ -963,6 +1159,16 @@ impl Axis {
 
     /// Take this tick's replies for the axis's device.
     pub fn absorb(&mut self, replies: &Replies, device: usize) {
+        if let Some(r) = self.ext_read.as_mut() {
+            if let Some(i) = r.index.take() {
+                if let Some(crate::powerstep::chain::Reply::Param(reg, v)) = replies.get(device, i)
+                {
+                    if reg == r.reg {
+                        r.value = Some((v, self.tick));
+                    }
+                }
+            }
+        }
         match self.rb.read.take() {
             Some(Read::Position) => {
                 if let Some(raw) = replies.param(device, Register::AbsPos) {
@@ -983,9 +1189,14 @@ impl Axis {
             return; // the chip's frame is being re-based
         }
         let rb = &mut self.rb;
-        let base = rb.raw.unwrap_or(wrap_22(rb.chip_pos as i32));
-        let delta = sign_extend_22(raw.wrapping_sub(base) & 0x3F_FFFF);
-        rb.chip_pos += i64::from(delta);
+        if core::mem::take(&mut self.absolute_read) {
+            // The chip re-based its frame (homing): its value is the position.
+            rb.chip_pos = i64::from(sign_extend_22(raw));
+        } else {
+            let base = rb.raw.unwrap_or(wrap_22(rb.chip_pos as i32));
+            let delta = sign_extend_22(raw.wrapping_sub(base) & 0x3F_FFFF);
+            rb.chip_pos += i64::from(delta);
+        }
         rb.raw = Some(raw);
         rb.pos_at = self.tick;
         // Measured in every state: when a move starts while the chip is
@@ -1020,12 +1231,19 @@ impl Axis {
                 return;
             }
         }
+        if s.stalled() {
+            // A stall may have lost steps: the home is no longer known.
+            self.homed = false;
+        }
         if s.overcurrent()
             || matches!(
                 s.thermal(),
                 ThermalStatus::BridgeShutdown | ThermalStatus::DeviceShutdown
             )
         {
+            if self.state == AxisState::Homing {
+                self.end_homing(HomingError::Fault);
+            }
             self.fault = Some(if s.overcurrent() {
                 AxisFault::Overcurrent
             } else {
@@ -1081,6 +1299,7 @@ mod tests {
             &[
                 Register::StepMode,
                 Register::Config,
+                Register::MinSpeed,
                 Register::KvalHold,
                 Register::KvalRun,
                 Register::KvalAcc,

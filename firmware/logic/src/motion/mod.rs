@@ -4,9 +4,11 @@
 
 pub mod axis;
 pub mod group;
+pub mod homing;
 pub mod profile;
 pub mod units;
 
 pub use axis::{Axis, AxisConfig, AxisFault, AxisState, ChipImage};
 pub use group::{AxisGroup, TickReport};
+pub use homing::{HomingError, HomingParams, HomingState};
 pub use profile::{Limits, Mode, Profile};

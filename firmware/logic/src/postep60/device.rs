@@ -40,8 +40,14 @@ use super::board::Board;
 use super::current::Current;
 use super::drv8711::{Drv8711Regs, Mapped};
 use super::settings::{AxisSettings, DriverMode, NAME_LEN, TEMPERATURE_LIMIT_MAX};
+use crate::motion::axis::logical_to_physical;
+use crate::motion::units::full_steps_q16_from_logical;
 use crate::motion::{Axis, Limits};
+use crate::motion::{HomingError, HomingParams};
+use crate::powerstep::commands::Direction;
+use crate::powerstep::registers::Register;
 use crate::powerstep::status::ThermalStatus;
+use crate::powerstep::units;
 
 /// The clock of USB 0x90's StepValue: step frequency = 480 000 Hz / StepValue.
 pub const STEP_DIR_CLOCK_HZ: u32 = 480_000;
@@ -269,6 +275,8 @@ pub struct Device {
     pub refused: u32,
     /// Limits clamped to what the chip can follow (diagnostics).
     pub clamps: u32,
+    /// Why the last homing start was refused (until the next start).
+    homing_refusal: Option<HomingError>,
 }
 
 impl Device {
@@ -287,7 +295,17 @@ impl Device {
             resets_seen: 0,
             refused: 0,
             clamps: 0,
+            homing_refusal: None,
         }
+    }
+
+    /// Why the last homing start was refused, if it was.
+    pub fn homing_refusal(&self) -> Option<HomingError> {
+        self.homing_refusal
+    }
+
+    pub fn note_homing_refusal(&mut self, e: HomingError) {
+        self.homing_refusal = Some(e);
     }
 
     /// Clamp the speed/acceleration settings to what the axis's chip can
@@ -425,8 +443,54 @@ impl Device {
         let closed = axis.status().switch_closed();
         let changed = self.switch_closed.is_some_and(|prev| prev != closed);
         self.switch_closed = Some(closed);
-        if changed && self.settings.end_switch {
+        // Homing runs into the switch on purpose.
+        if changed && self.settings.end_switch && !axis.is_homing() {
             axis.stop_now();
+        }
+    }
+
+    /// Start homing with the stored parameters (extension): the end switch
+    /// must be enabled, the axis awake, unfaulted and at rest.
+    pub fn start_homing(&mut self, axis: &mut Axis) -> Result<(), HomingError> {
+        if !self.settings.end_switch {
+            return Err(HomingError::SwitchDisabled);
+        }
+        if self.blocked().is_err() {
+            return Err(HomingError::NotReady);
+        }
+        let cfg = axis.config();
+        let h = self.settings.homing;
+        let full = |v: u32| full_steps_q16_from_logical(v, cfg.logical_shift);
+        // ReleaseSW moves at max(MIN_SPEED, 5 full steps/s).
+        let release = full(h.release_speed).max(5 << 16);
+        let params = HomingParams {
+            toward: if h.forward {
+                Direction::Forward
+            } else {
+                Direction::Reverse
+            },
+            search_speed: units::speed_from_steps_per_s(full(h.search_speed)).max(1),
+            release_min_speed: units::min_speed_from_steps_per_s(release),
+            release_speed: units::speed_from_steps_per_s(release),
+            max_travel: logical_to_physical(i64::from(h.max_travel), cfg.logical_shift, cfg.step)
+                .unsigned_abs(),
+            timeout_ticks: u64::from(h.timeout_s) * 1_000_000 / u64::from(cfg.tick_us.max(1)),
+            nc: self.settings.end_switch_nc,
+        };
+        self.homing_refusal = None;
+        axis.start_homing(params)
+    }
+
+    /// Write a tunable chip register (extension 0x01nn): stored in the
+    /// settings and in the axis's chip image (so it survives chip resets).
+    pub fn set_tuning(&mut self, reg: Register, value: u16, axis: &mut Axis) -> bool {
+        self.settings.tuning.set(reg, value) && axis.set_register(reg, u32::from(value))
+    }
+
+    /// Hand every stored tuning value to the axis (at boot).
+    pub fn apply_tuning(&self, axis: &mut Axis) {
+        for (reg, v) in self.settings.tuning.iter() {
+            let _ = axis.set_register(reg, u32::from(v));
         }
     }
 
@@ -508,6 +572,22 @@ impl Device {
         board: &Board,
     ) -> Result<Effect, CommandError> {
         let limit = board.current_limit_ma;
+        // While homing, motion requests wait (Stop, soft stop, Set zero
+        // and sleep end the homing instead).
+        let moves = matches!(
+            req,
+            Request::SetPosition(_)
+                | Request::SetRequestedSpeed(_)
+                | Request::SetInvert(_)
+                | Request::StepDir { .. }
+                | Request::Trajectory(_)
+                | Request::SetStepMode(_)
+                | Request::SetMode(_)
+                | Request::SetModeUsb(_)
+        );
+        if moves && axis.is_homing() {
+            return self.refuse(CommandError::Busy);
+        }
         match req {
             Request::Loopback(b) => self.loopback = b,
             Request::RunSleep(0xDA) => {

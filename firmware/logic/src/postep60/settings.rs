@@ -121,7 +121,136 @@ pub struct AxisSettings {
     pub name: [u8; NAME_LEN],
     /// The DRV8711 register image as stored (USB 0x80; see `drv8711`).
     pub drv: Drv8711Regs,
+    /// powerSTEP01 tuning registers written through the extension space.
+    pub tuning: Tuning,
+    /// Homing parameters (extension).
+    pub homing: HomingSettings,
 }
+
+/// The powerSTEP01 registers a user may tune through the extension space
+/// (0x01nn), persisted and written again after every chip reset. Each is
+/// `None` until written: the chip keeps its reset value.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub struct Tuning {
+    values: [Option<u16>; TUNABLE.len()],
+}
+
+/// The tunable registers, in image order.
+pub const TUNABLE: [crate::powerstep::registers::Register; 13] = {
+    use crate::powerstep::registers::Register as R;
+    [
+        R::MinSpeed,
+        R::IntSpeed,
+        R::StSlp,
+        R::FnSlpAcc,
+        R::FnSlpDec,
+        R::KTherm,
+        R::OcdTh,
+        R::StallTh,
+        R::FsSpd,
+        R::AlarmEn,
+        R::GateCfg1,
+        R::GateCfg2,
+        R::Config,
+    ]
+};
+
+impl Tuning {
+    fn slot(reg: crate::powerstep::registers::Register) -> Option<usize> {
+        TUNABLE.iter().position(|r| *r == reg)
+    }
+
+    /// The value written for `reg`, if it is tunable and was written.
+    pub fn get(&self, reg: crate::powerstep::registers::Register) -> Option<u16> {
+        self.values.get(Self::slot(reg)?).copied().flatten()
+    }
+
+    /// Store `value` for a tunable register; false if `reg` is not one.
+    pub fn set(&mut self, reg: crate::powerstep::registers::Register, value: u16) -> bool {
+        match Self::slot(reg).and_then(|i| self.values.get_mut(i)) {
+            Some(slot) => {
+                *slot = Some(value);
+                true
+            }
+            None => false,
+        }
+    }
+
+    /// Every written (register, value).
+    pub fn iter(&self) -> impl Iterator<Item = (crate::powerstep::registers::Register, u16)> + '_ {
+        TUNABLE
+            .iter()
+            .zip(self.values.iter())
+            .filter_map(|(r, v)| v.map(|v| (*r, v)))
+    }
+}
+
+/// Homing parameters of one axis (logical steps of its step mode).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct HomingSettings {
+    /// Search toward the switch forward (else reverse).
+    pub forward: bool,
+    /// Search speed, logical steps/s.
+    pub search_speed: u32,
+    /// Back-off speed, logical steps/s (at least 5 full steps/s: the
+    /// chip's ReleaseSW floor).
+    pub release_speed: u32,
+    /// Fail beyond this travel, logical steps (0: no limit).
+    pub max_travel: u32,
+    /// Fail after this many seconds (0: no limit).
+    pub timeout_s: u16,
+}
+
+impl HomingSettings {
+    pub const FACTORY: HomingSettings = HomingSettings {
+        forward: false,
+        search_speed: 1600,
+        release_speed: 80,
+        max_travel: 0,
+        timeout_s: 60,
+    };
+    const LEN: usize = 1 + 4 * 3 + 2;
+}
+
+/// What the communication watchdog does when a bus has been silent too long.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum WatchdogAction {
+    /// Stop at once and hold (HardStop).
+    Hold = 0,
+    /// Decelerate to a stop with the deceleration ramp.
+    SoftStop = 1,
+    /// Bridges off (as Run/Sleep's sleep).
+    HiZ = 2,
+}
+
+impl WatchdogAction {
+    pub const fn from_code(c: u8) -> Option<WatchdogAction> {
+        match c {
+            0 => Some(WatchdogAction::Hold),
+            1 => Some(WatchdogAction::SoftStop),
+            2 => Some(WatchdogAction::HiZ),
+            _ => None,
+        }
+    }
+}
+
+/// The communication watchdog of one bus: off when `timeout_ms` is 0.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Watchdog {
+    pub timeout_ms: u16,
+    pub action: WatchdogAction,
+}
+
+impl Watchdog {
+    pub const OFF: Watchdog = Watchdog {
+        timeout_ms: 0,
+        action: WatchdogAction::SoftStop,
+    };
+}
+
+/// Buses the watchdog watches, in this order.
+pub const WATCHED_BUSES: usize = 3;
 
 /// Highest temperature limit (USB 0x80 byte 38: "max.: 120").
 pub const TEMPERATURE_LIMIT_MAX: u8 = 120;
@@ -146,12 +275,17 @@ impl AxisSettings {
         bin2_steps: -100,
         name: *b"stepbridge axis\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0\0",
         drv: Drv8711Regs::RESET,
+        tuning: Tuning {
+            values: [None; TUNABLE.len()],
+        },
+        homing: HomingSettings::FACTORY,
     };
 
     /// Bytes of an axis record in image format 1 (16-bit requested speed, no
     /// DRV8711 image) and in format 2.
     const RECORD_V1: usize = 2 * 3 + 1 + 1 + 1 + 4 * 3 + 2 + 1 + 4 * 2 + NAME_LEN;
-    const RECORD: usize = Self::RECORD_V1 + 2 + 2 * DRV_REGISTERS;
+    const RECORD: usize =
+        Self::RECORD_V1 + 2 + 2 * DRV_REGISTERS + 2 + 2 * TUNABLE.len() + HomingSettings::LEN;
 
     fn encode(&self, out: &mut [u8]) {
         let mut w = Writer { out, at: 0 };
@@ -173,6 +307,22 @@ impl AxisSettings {
         for r in self.drv.0 {
             w.bytes(&r.to_le_bytes());
         }
+        let mask = self
+            .tuning
+            .values
+            .iter()
+            .enumerate()
+            .fold(0u16, |m, (i, v)| if v.is_some() { m | 1 << i } else { m });
+        w.bytes(&mask.to_le_bytes());
+        for v in self.tuning.values {
+            w.bytes(&v.unwrap_or(0).to_le_bytes());
+        }
+        let h = &self.homing;
+        w.bytes(&[u8::from(h.forward)]);
+        for v in [h.search_speed, h.release_speed, h.max_travel] {
+            w.bytes(&v.to_le_bytes());
+        }
+        w.bytes(&h.timeout_s.to_le_bytes());
     }
 
     /// Decode a record of image format `format` (1 or 2).
@@ -205,10 +355,29 @@ impl AxisSettings {
         let mut name = [0u8; NAME_LEN];
         name.copy_from_slice(r.take(NAME_LEN)?);
         let mut drv = Drv8711Regs::RESET;
+        let mut tuning = Tuning::default();
+        let mut homing = HomingSettings::FACTORY;
         if format >= 2 {
             for slot in drv.0.iter_mut() {
                 *slot = r.u16().filter(|v| *v <= 0x0FFF)?;
             }
+            let mask = r.u16().filter(|m| *m < 1 << TUNABLE.len())?;
+            for (i, (slot, reg)) in tuning.values.iter_mut().zip(TUNABLE).enumerate() {
+                let v = r.u16()?;
+                if mask & 1 << i != 0 {
+                    if u32::from(v) & !reg.mask() != 0 {
+                        return None;
+                    }
+                    *slot = Some(v);
+                }
+            }
+            homing = HomingSettings {
+                forward: r.u8().filter(|b| *b <= 1)? == 1,
+                search_speed: r.u32()?,
+                release_speed: r.u32()?,
+                max_travel: r.u32()?,
+                timeout_s: r.u16()?,
+            };
         }
         Some(AxisSettings {
             full_scale,
@@ -228,6 +397,8 @@ impl AxisSettings {
             bin2_steps,
             name,
             drv,
+            tuning,
+            homing,
         })
     }
 }
@@ -239,13 +410,15 @@ pub struct Settings {
     pub base_address: u8,
     pub serial: Serial,
     pub axes: [AxisSettings; MAX_DEVICES],
+    /// Communication watchdog per bus: Modbus, I2C, USB (extension).
+    pub watchdog: [Watchdog; WATCHED_BUSES],
 }
 
 /// Image format written by this firmware. Format 1 (without the DRV8711
 /// image, 16-bit requested speed) still loads.
 pub const IMAGE_FORMAT: u8 = 2;
-/// Bytes of a settings image.
-pub const IMAGE_LEN: usize = 3 + MAX_DEVICES * AxisSettings::RECORD;
+/// Bytes of a settings image: header, the watchdogs, the axes.
+pub const IMAGE_LEN: usize = 3 + 3 * WATCHED_BUSES + MAX_DEVICES * AxisSettings::RECORD;
 /// Bytes of a format-1 image.
 pub const IMAGE_LEN_V1: usize = 3 + MAX_DEVICES * AxisSettings::RECORD_V1;
 const _: () = assert!(
@@ -268,16 +441,22 @@ impl Settings {
         base_address: 1,
         serial: Serial::DEFAULT,
         axes: [AxisSettings::FACTORY; MAX_DEVICES],
+        watchdog: [Watchdog::OFF; WATCHED_BUSES],
     };
 
     pub fn to_image(&self, out: &mut [u8; IMAGE_LEN]) {
         out[0] = IMAGE_FORMAT;
         out[1] = self.base_address;
         out[2] = self.serial.code();
+        for (w, chunk) in self.watchdog.iter().zip(out[3..].chunks_exact_mut(3)) {
+            let [t0, t1] = w.timeout_ms.to_le_bytes();
+            chunk.copy_from_slice(&[t0, t1, w.action as u8]);
+        }
+        let axes = 3 + 3 * WATCHED_BUSES;
         for (axis, chunk) in self
             .axes
             .iter()
-            .zip(out[3..].chunks_exact_mut(AxisSettings::RECORD))
+            .zip(out[axes..].chunks_exact_mut(AxisSettings::RECORD))
         {
             axis.encode(chunk);
         }
@@ -300,6 +479,24 @@ impl Settings {
             return Err(ImageError::Invalid);
         }
         let serial = Serial::from_code(serial).ok_or(ImageError::Invalid)?;
+        let mut watchdog = [Watchdog::OFF; WATCHED_BUSES];
+        let rest = if format >= 2 {
+            let (wd, rest) = rest
+                .split_at_checked(3 * WATCHED_BUSES)
+                .ok_or(ImageError::Invalid)?;
+            for (w, chunk) in watchdog.iter_mut().zip(wd.chunks_exact(3)) {
+                let &[t0, t1, a] = chunk else {
+                    return Err(ImageError::Invalid);
+                };
+                *w = Watchdog {
+                    timeout_ms: u16::from_le_bytes([t0, t1]),
+                    action: WatchdogAction::from_code(a).ok_or(ImageError::Invalid)?,
+                };
+            }
+            rest
+        } else {
+            rest
+        };
         let mut axes = [AxisSettings::FACTORY; MAX_DEVICES];
         for (axis, chunk) in axes.iter_mut().zip(rest.chunks_exact(record)) {
             *axis = AxisSettings::decode(chunk, format).ok_or(ImageError::Invalid)?;
@@ -308,6 +505,7 @@ impl Settings {
             base_address,
             serial,
             axes,
+            watchdog,
         })
     }
 }
@@ -388,6 +586,23 @@ mod tests {
             bin2_steps: i32::MAX,
             name: [b'x'; NAME_LEN],
             drv: Drv8711Regs([0xFFF, 0, 1, 2, 3, 4, 5, 0]),
+            tuning: {
+                let mut t = Tuning::default();
+                t.set(crate::powerstep::registers::Register::OcdTh, 0x1F);
+                t.set(crate::powerstep::registers::Register::Config, 0xFFFF);
+                t
+            },
+            homing: HomingSettings {
+                forward: true,
+                search_speed: u32::MAX,
+                release_speed: 7,
+                max_travel: 123_456,
+                timeout_s: 9,
+            },
+        };
+        s.watchdog[1] = Watchdog {
+            timeout_ms: 65_535,
+            action: WatchdogAction::HiZ,
         };
         let mut img = [0u8; IMAGE_LEN];
         s.to_image(&mut img);

@@ -170,6 +170,25 @@ use crate::postep60::{Current, Query, Request, Value};
 pub const SELECT_AXIS: u8 = 0x70;
 /// Extension: decelerate to a stop with the deceleration ramp (no data).
 pub const SOFT_STOP: u8 = 0x71;
+/// Extension: read registers of the extension space (`bridge::ext`):
+/// BYTE0..1 address (MSB first), BYTE2 quantity 1..=3. A read after it
+/// returns [status, registers MSB first…]; status 1 = the value is being
+/// read from the chip: read again after a control tick (1 ms).
+pub const EXT_READ: u8 = 0x72;
+/// Extension: write registers of the extension space: BYTE0..1 address,
+/// then 1..=3 registers MSB first. A read after it returns [status].
+pub const EXT_WRITE: u8 = 0x73;
+/// Registers one I2C extension access carries.
+pub const EXT_MAX: usize = 3;
+
+/// Status byte of the extension commands' reads.
+pub mod ext_status {
+    pub const OK: u8 = 0;
+    pub const NOT_YET: u8 = 1;
+    pub const ILLEGAL_ADDRESS: u8 = 10;
+    pub const ILLEGAL_VALUE: u8 = 11;
+    pub const REFUSED: u8 = 12;
+}
 
 /// A decoded master write.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -183,6 +202,16 @@ pub enum I2cCommand {
     SelectAxis(u8),
     /// Reading after a bare 0x70: which axis is selected.
     Selection,
+    /// Extension 0x72.
+    ExtRead { address: u16, quantity: u8 },
+    /// Extension 0x73 (`len` registers of `data`).
+    ExtWrite {
+        address: u16,
+        data: [u16; EXT_MAX],
+        len: u8,
+    },
+    /// What a read after an executed 0x73 returns.
+    ExtStatus(u8),
 }
 
 /// Why a master write is not a command.
@@ -282,6 +311,26 @@ fn shape(cmd: u8) -> Option<(u8, Build)> {
             None => C::Selection,
         }),
         SOFT_STOP => (0, |_| C::Request(Request::SoftStop)),
+        EXT_READ => (3, |d| C::ExtRead {
+            address: u16::from_be_bytes([b(d, 0), b(d, 1)]),
+            quantity: b(d, 2),
+        }),
+        EXT_WRITE => (4, |d| {
+            let mut data = [0u16; EXT_MAX];
+            let mut len = 0u8;
+            for (slot, pair) in data
+                .iter_mut()
+                .zip(d.get(2..).unwrap_or(&[]).chunks_exact(2))
+            {
+                *slot = u16::from_be_bytes([b(pair, 0), b(pair, 1)]);
+                len += 1;
+            }
+            C::ExtWrite {
+                address: u16::from_be_bytes([b(d, 0), b(d, 1)]),
+                data,
+                len,
+            }
+        }),
         _ => return None,
     })
 }

@@ -157,6 +157,11 @@ fn shape(cmd: u8) -> Option<Shape> {
     })
 }
 
+/// An address in the extension space (high byte ≠ 0, `bridge::ext`).
+pub const fn is_extension(address: u16) -> bool {
+    address >> 8 != 0
+}
+
 /// The command byte of a register address in the PoStep60 space.
 fn command(address: u16) -> Result<u8, Exception> {
     match address.to_be_bytes() {

@@ -79,6 +79,7 @@ pub use map::Exception;
 use crc::{Crc, CRC_16_MODBUS};
 use heapless::Vec;
 
+use crate::bridge::ExtError;
 use crate::postep60::settings::{Parity, Serial};
 use crate::postep60::{CommandError, Effect, Query, Request, Value};
 
@@ -172,6 +173,10 @@ pub struct Stats {
     pub ignored_values: u32,
     /// Normal (non-exception) responses built.
     pub responses: u32,
+    /// Exceptions 01, 02, 03, 04.
+    pub exceptions_by_code: [u32; 4],
+    /// Extension reads answered only after a control tick (chip registers).
+    pub deferred: u32,
 }
 
 impl Stats {
@@ -186,7 +191,36 @@ impl Stats {
         broadcasts: 0,
         ignored_values: 0,
         responses: 0,
+        exceptions_by_code: [0; 4],
+        deferred: 0,
     };
+
+    /// The counts since `base` (saturating at 0).
+    pub fn since(&self, base: &Stats) -> Stats {
+        let d = |a: u32, b: u32| a.saturating_sub(b);
+        let mut by_code = [0u32; 4];
+        for ((o, a), b) in by_code
+            .iter_mut()
+            .zip(self.exceptions_by_code.iter())
+            .zip(base.exceptions_by_code.iter())
+        {
+            *o = d(*a, *b);
+        }
+        Stats {
+            frames_ok: d(self.frames_ok, base.frames_ok),
+            crc_errors: d(self.crc_errors, base.crc_errors),
+            gaps: d(self.gaps, base.gaps),
+            bad_characters: d(self.bad_characters, base.bad_characters),
+            overruns: d(self.overruns, base.overruns),
+            other_ids: d(self.other_ids, base.other_ids),
+            exceptions: d(self.exceptions, base.exceptions),
+            broadcasts: d(self.broadcasts, base.broadcasts),
+            ignored_values: d(self.ignored_values, base.ignored_values),
+            responses: d(self.responses, base.responses),
+            exceptions_by_code: by_code,
+            deferred: d(self.deferred, base.deferred),
+        }
+    }
 }
 
 fn bump(counter: &mut u32) {
@@ -199,8 +233,23 @@ pub trait ModbusTarget {
     fn axis_for_id(&self, id: u8) -> Option<usize>;
     fn axes(&self) -> usize;
     fn request(&mut self, axis: usize, req: Request) -> Result<Effect, CommandError>;
-    fn query(&self, axis: usize, q: Query) -> Option<Value>;
+    fn query(&mut self, axis: usize, q: Query) -> Option<Value>;
+    /// Read registers of the extension space (address high byte ≠ 0).
+    fn ext_read(&mut self, axis: usize, address: u16, out: &mut [u16]) -> Result<(), ExtError> {
+        let _ = (axis, address, out);
+        Err(ExtError::IllegalAddress)
+    }
+    /// Write registers of the extension space.
+    fn ext_write(&mut self, axis: usize, address: u16, data: &[u16]) -> Result<(), ExtError> {
+        let _ = (axis, address, data);
+        Err(ExtError::IllegalAddress)
+    }
 }
+
+/// An extension read not answered yet is retried every this many µs …
+pub const DEFER_RETRY_US: u64 = 1_000;
+/// … and answered with exception 04 after this long.
+pub const DEFER_MAX_US: u64 = 50_000;
 
 /// Why a frame in progress will be dropped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -265,6 +314,11 @@ pub struct RtuServer {
     /// Response ADU of the last `poll`.
     tx: Vec<u8, ADU_MAX>,
     stats: Stats,
+    /// A request whose extension read waits for the chip; retried at
+    /// `retry_us`, given up at `give_up_us`.
+    deferred: Frame,
+    retry_us: u64,
+    give_up_us: u64,
 }
 
 impl core::fmt::Debug for RtuServer {
@@ -286,6 +340,9 @@ impl RtuServer {
             ready: Frame::EMPTY,
             tx: Vec::new(),
             stats: Stats::ZERO,
+            deferred: Frame::EMPTY,
+            retry_us: 0,
+            give_up_us: 0,
         }
     }
 
@@ -338,12 +395,17 @@ impl RtuServer {
     /// When `poll` should run next: t3.5 after the last byte of a frame in
     /// progress (already passed if an ended frame is waiting).
     pub fn deadline(&self) -> Option<u64> {
-        if !self.ready.is_empty() {
+        let frame = if !self.ready.is_empty() {
             Some(self.frame_end(&self.ready))
         } else if !self.rx.is_empty() {
             Some(self.frame_end(&self.rx))
         } else {
             None
+        };
+        let retry = (!self.deferred.is_empty()).then_some(self.retry_us);
+        match (frame, retry) {
+            (Some(a), Some(b)) => Some(a.min(b)),
+            (a, b) => a.or(b),
         }
     }
 
@@ -352,17 +414,47 @@ impl RtuServer {
     pub fn poll(&mut self, now_us: u64, target: &mut impl ModbusTarget) -> Option<&[u8]> {
         self.tx.clear();
         let rx_ended = !self.rx.is_empty() && now_us >= self.frame_end(&self.rx);
-        if rx_ended {
+        let new_frame = rx_ended || !self.ready.is_empty();
+        if new_frame && !self.deferred.is_empty() {
+            // The master moved on (it timed out): the waiting read is stale.
+            bump(&mut self.stats.overruns);
+            self.deferred.clear();
+        }
+        let deferred = if rx_ended {
             if !self.ready.is_empty() {
                 // Two ended frames: the older one is stale.
                 bump(&mut self.stats.overruns);
                 self.ready.clear();
             }
-            process(&self.rx, &mut self.tx, &mut self.stats, target);
+            let d = process(&self.rx, &mut self.tx, &mut self.stats, target, true);
+            if d {
+                self.deferred = self.rx.clone();
+            }
             self.rx.clear();
+            d
         } else if !self.ready.is_empty() {
-            process(&self.ready, &mut self.tx, &mut self.stats, target);
+            let d = process(&self.ready, &mut self.tx, &mut self.stats, target, true);
+            if d {
+                self.deferred = self.ready.clone();
+            }
             self.ready.clear();
+            d
+        } else if !self.deferred.is_empty() && now_us >= self.retry_us {
+            let may_wait = now_us < self.give_up_us;
+            let frame = core::mem::replace(&mut self.deferred, Frame::EMPTY);
+            let d = process(&frame, &mut self.tx, &mut self.stats, target, may_wait);
+            if d {
+                self.deferred = frame;
+                self.retry_us = now_us.saturating_add(DEFER_RETRY_US);
+            }
+            return (!self.tx.is_empty()).then_some(self.tx.as_slice());
+        } else {
+            false
+        };
+        if deferred {
+            bump(&mut self.stats.deferred);
+            self.retry_us = now_us.saturating_add(DEFER_RETRY_US);
+            self.give_up_us = now_us.saturating_add(DEFER_MAX_US);
         }
         if self.tx.is_empty() {
             None
@@ -377,42 +469,104 @@ pub fn crc16(bytes: &[u8]) -> u16 {
     CRC16.checksum(bytes)
 }
 
-/// Handle one ended frame; the response (if any) is left in `tx`.
+/// Handle one ended frame; the response (if any) is left in `tx`. Returns
+/// true when the request waits for the chip (an extension read, only when
+/// `may_wait`; the frame is processed again later — its counters are not
+/// counted twice: a retried frame only counts its final outcome).
 fn process(
     frame: &Frame,
     tx: &mut Vec<u8, ADU_MAX>,
     stats: &mut Stats,
     target: &mut impl ModbusTarget,
-) {
+    may_wait: bool,
+) -> bool {
     match frame.fault {
-        Some(Fault::Gap) => return bump(&mut stats.gaps),
-        Some(Fault::BadCharacter) => return bump(&mut stats.bad_characters),
-        Some(Fault::Overlong) => return bump(&mut stats.overruns),
+        Some(Fault::Gap) => {
+            bump(&mut stats.gaps);
+            return false;
+        }
+        Some(Fault::BadCharacter) => {
+            bump(&mut stats.bad_characters);
+            return false;
+        }
+        Some(Fault::Overlong) => {
+            bump(&mut stats.overruns);
+            return false;
+        }
         None => {}
     }
     let bytes = frame.bytes();
     let Some(body_len) = bytes.len().checked_sub(2).filter(|n| *n >= 2) else {
-        return bump(&mut stats.crc_errors);
+        bump(&mut stats.crc_errors);
+        return false;
     };
     let (body, crc) = bytes.split_at(body_len);
     if crc16(body).to_le_bytes() != *crc {
-        return bump(&mut stats.crc_errors);
+        bump(&mut stats.crc_errors);
+        return false;
     }
-    bump(&mut stats.frames_ok);
     let Some((&id, pdu)) = body.split_first() else {
-        return;
+        return false;
     };
     match id {
         0 => {
+            bump(&mut stats.frames_ok);
             bump(&mut stats.broadcasts);
             broadcast(pdu, stats, target);
+            false
         }
         1..=ID_MAX => match target.axis_for_id(id) {
-            Some(axis) => respond(id, axis, pdu, tx, stats, target),
-            None => bump(&mut stats.other_ids),
+            Some(axis) => {
+                let waits = respond(id, axis, pdu, tx, stats, target, may_wait);
+                if !waits {
+                    bump(&mut stats.frames_ok);
+                }
+                waits
+            }
+            None => {
+                bump(&mut stats.frames_ok);
+                bump(&mut stats.other_ids);
+                false
+            }
         },
-        _ => bump(&mut stats.other_ids),
+        _ => {
+            bump(&mut stats.frames_ok);
+            bump(&mut stats.other_ids);
+            false
+        }
     }
+}
+
+/// Why `serve` did not answer normally.
+enum NotServed {
+    Exception(Exception),
+    /// An extension read waits for the chip.
+    Wait,
+}
+
+impl From<Exception> for NotServed {
+    fn from(e: Exception) -> NotServed {
+        NotServed::Exception(e)
+    }
+}
+
+fn ext_exception(e: ExtError) -> NotServed {
+    NotServed::Exception(match e {
+        ExtError::IllegalAddress => Exception::IllegalDataAddress,
+        ExtError::IllegalValue => Exception::IllegalDataValue,
+        ExtError::Refused => Exception::ServerDeviceFailure,
+        ExtError::NotYet => return NotServed::Wait,
+    })
+}
+
+/// Big-endian registers of `data` (2 bytes each) into `regs`; how many.
+fn registers_of(data: &[u8], regs: &mut [u16; WRITE_QUANTITY_MAX as usize]) -> usize {
+    let mut n = 0;
+    for (slot, pair) in regs.iter_mut().zip(data.chunks_exact(2)) {
+        *slot = be16(pair, 0);
+        n += 1;
+    }
+    n
 }
 
 /// A structurally valid request PDU.
@@ -511,9 +665,46 @@ fn serve(
     out: &mut Vec<u8, ADU_MAX>,
     stats: &mut Stats,
     target: &mut impl ModbusTarget,
-) -> Result<(), Exception> {
-    // Responses are at most 8 bytes: pushes into a 256-byte buffer cannot fail.
+) -> Result<(), NotServed> {
+    // Responses are at most 1 + 2 + 2·125 bytes: they fit the 256-byte buffer.
     match parse(pdu)? {
+        Pdu::Read { address, quantity } if map::is_extension(address) => {
+            let mut regs = [0u16; READ_QUANTITY_MAX as usize];
+            let regs = regs
+                .get_mut(..usize::from(quantity))
+                .ok_or(Exception::IllegalDataValue)?;
+            target
+                .ext_read(axis, address, regs)
+                .map_err(ext_exception)?;
+            let count = u8::try_from(2 * regs.len()).map_err(|_| Exception::IllegalDataValue)?;
+            let _ = out.push(READ_HOLDING_REGISTERS);
+            let _ = out.push(count);
+            for r in regs.iter() {
+                let _ = out.extend_from_slice(&r.to_be_bytes());
+            }
+        }
+        Pdu::WriteSingle { address, data } if map::is_extension(address) => {
+            let mut regs = [0u16; WRITE_QUANTITY_MAX as usize];
+            let n = registers_of(data, &mut regs);
+            target
+                .ext_write(axis, address, regs.get(..n).unwrap_or(&[]))
+                .map_err(ext_exception)?;
+            let _ = out.extend_from_slice(pdu);
+        }
+        Pdu::WriteMultiple {
+            address,
+            quantity,
+            data,
+        } if map::is_extension(address) => {
+            let mut regs = [0u16; WRITE_QUANTITY_MAX as usize];
+            let n = registers_of(data, &mut regs);
+            target
+                .ext_write(axis, address, regs.get(..n).unwrap_or(&[]))
+                .map_err(ext_exception)?;
+            let _ = out.push(WRITE_MULTIPLE_REGISTERS);
+            let _ = out.extend_from_slice(&address.to_be_bytes());
+            let _ = out.extend_from_slice(&quantity.to_be_bytes());
+        }
         Pdu::Read { address, quantity } => {
             let query = map::read(address, quantity)?;
             let value = target
@@ -522,7 +713,7 @@ fn serve(
             let mut regs = [0u8; 2 * map::REGISTERS_MAX];
             let n = map::encode(value, &mut regs);
             if n != 2 * usize::from(quantity) {
-                return Err(Exception::ServerDeviceFailure);
+                return Err(Exception::ServerDeviceFailure.into());
             }
             let count = u8::try_from(n).map_err(|_| Exception::ServerDeviceFailure)?;
             let _ = out.push(READ_HOLDING_REGISTERS);
@@ -550,7 +741,8 @@ fn serve(
     Ok(())
 }
 
-/// Build the response ADU for server id `id` in `tx`.
+/// Build the response ADU for server id `id` in `tx`; true (and no
+/// response) when an extension read waits for the chip and `may_wait`.
 fn respond(
     id: u8,
     axis: usize,
@@ -558,23 +750,58 @@ fn respond(
     tx: &mut Vec<u8, ADU_MAX>,
     stats: &mut Stats,
     target: &mut impl ModbusTarget,
-) {
+    may_wait: bool,
+) -> bool {
     tx.clear();
     let _ = tx.push(id);
-    if let Err(e) = serve(axis, pdu, tx, stats, target) {
+    let e = match serve(axis, pdu, tx, stats, target) {
+        Ok(()) => None,
+        Err(NotServed::Wait) if may_wait => {
+            tx.clear();
+            return true;
+        }
+        // Waited long enough: the read could not be performed.
+        Err(NotServed::Wait) => Some(Exception::ServerDeviceFailure),
+        Err(NotServed::Exception(e)) => Some(e),
+    };
+    if let Some(e) = e {
         let function = pdu.first().copied().unwrap_or(0);
         tx.clear();
         let _ = tx.extend_from_slice(&[id, function | 0x80, e.code()]);
         bump(&mut stats.exceptions);
+        if let Some(c) = stats
+            .exceptions_by_code
+            .get_mut(usize::from(e.code()).wrapping_sub(1))
+        {
+            bump(c);
+        }
     } else {
         bump(&mut stats.responses);
     }
     let crc = crc16(tx);
     let _ = tx.extend_from_slice(&crc.to_le_bytes());
+    false
 }
 
 /// Execute a broadcast write on every axis; never answers.
 fn broadcast(pdu: &[u8], stats: &mut Stats, target: &mut impl ModbusTarget) {
+    let ext = match parse(pdu) {
+        Ok(Pdu::WriteSingle { address, data }) if map::is_extension(address) => {
+            Some((address, data))
+        }
+        Ok(Pdu::WriteMultiple { address, data, .. }) if map::is_extension(address) => {
+            Some((address, data))
+        }
+        _ => None,
+    };
+    if let Some((address, data)) = ext {
+        let mut regs = [0u16; WRITE_QUANTITY_MAX as usize];
+        let n = registers_of(data, &mut regs);
+        for axis in 0..target.axes() {
+            let _ = target.ext_write(axis, address, regs.get(..n).unwrap_or(&[]));
+        }
+        return;
+    }
     let req = match parse(pdu) {
         Ok(Pdu::WriteSingle { address, data }) => map::write(address, 1, data),
         Ok(Pdu::WriteMultiple {

@@ -30,7 +30,7 @@ impl ModbusTarget for Recorder {
             None => Ok(Effect::None),
         }
     }
-    fn query(&self, axis: usize, q: Query) -> Option<Value> {
+    fn query(&mut self, axis: usize, q: Query) -> Option<Value> {
         Some(match q {
             Query::Position => Value::I32(-2),
             Query::FullScaleCurrent => Value::Current(Current { tq: 123, ai: 3 }),

@@ -47,7 +47,18 @@ pub mod status {
     pub const BOOT_MODE: u8 = 8;
     /// `OutDATA[62]` names an axis the chain does not have.
     pub const NO_AXIS: u8 = 9;
+    /// Extension space (0xE0/0xE1): no such register or quantity.
+    pub const ILLEGAL_ADDRESS: u8 = 10;
+    /// Extension space: a value out of range.
+    pub const ILLEGAL_VALUE: u8 = 11;
+    /// Extension space: not now (access class, busy…).
+    pub const REFUSED: u8 = 12;
+    /// Extension space: the chip did not answer in time.
+    pub const TIMEOUT: u8 = 13;
 }
+
+/// Registers one USB extension access carries (0xE0/0xE1).
+pub const EXT_MAX: usize = 16;
 
 /// Command bytes (`OutDATA[1]`).
 pub mod cmd {
@@ -76,6 +87,11 @@ pub mod cmd {
     pub const READ_NAME: u8 = 0xC1;
     /// Extension: restart into ST's ROM DFU bootloader.
     pub const ENTER_DFU: u8 = 0xDF;
+    /// Extension: read the extension space (`bridge::ext`): `OutDATA[20..21]`
+    /// address MSB first, `[22]` quantity 1..=16; answer `[16..]` MSB first.
+    pub const EXT_READ: u8 = 0xE0;
+    /// Extension: write the extension space: address, quantity, `[24..]` data.
+    pub const EXT_WRITE: u8 = 0xE1;
 }
 
 /// 0x80 Write Driver Settings.
@@ -128,6 +144,15 @@ pub enum UsbRequest {
     ReadName,
     StreamOff,
     EnterDfu,
+    ExtRead {
+        address: u16,
+        quantity: u8,
+    },
+    ExtWrite {
+        address: u16,
+        quantity: u8,
+        data: [u16; EXT_MAX],
+    },
 }
 
 /// Why an OUT report was not decoded (it is then ignored and counted).
@@ -232,6 +257,21 @@ pub fn decode(r: &[u8]) -> Result<(UsbRequest, u8), UsbError> {
             UsbRequest::WriteName(name)
         }
         cmd::READ_NAME => UsbRequest::ReadName,
+        cmd::EXT_READ => UsbRequest::ExtRead {
+            address: u16::from_be_bytes([b(r, 20), b(r, 21)]),
+            quantity: b(r, 22),
+        },
+        cmd::EXT_WRITE => {
+            let mut data = [0u16; EXT_MAX];
+            for (k, slot) in data.iter_mut().enumerate() {
+                *slot = u16::from_be_bytes([b(r, 24 + 2 * k), b(r, 25 + 2 * k)]);
+            }
+            UsbRequest::ExtWrite {
+                address: u16::from_be_bytes([b(r, 20), b(r, 21)]),
+                quantity: b(r, 22),
+                data,
+            }
+        }
         cmd::ENTER_DFU => {
             if [b(r, 20), b(r, 21), b(r, 22), b(r, 23)] != DFU_MAGIC {
                 return Err(UsbError::DfuMagic);

@@ -1,0 +1,485 @@
+//! The extension address space (SPEC.md "Extensions"): one map of 16-bit
+//! registers, the same on every bus — Modbus addresses with a high byte ≠ 0,
+//! I2C commands 0x72/0x73 and USB commands 0xE0/0xE1 carry it. Everything
+//! here is an extension of this bridge, not PoStep60 behaviour.
+//!
+//! | block | addresses | what | scope |
+//! |---|---|---|---|
+//! | chip | 0x01nn | powerSTEP01 register `nn` (0x01..=0x1B), right-aligned; 22/20-bit ones (ABS_POS, MARK, SPEED) in two registers, high word first | axis |
+//! | I/O extension | 0x02nn | the Copley-style SPI extension | bridge |
+//! | diagnostics | 0x03nn | counters, timing, reset cause, versions ([`diag`]); a write of any value to 0x0300 clears the counters | bridge |
+//! | homing | 0x04nn | start/abort, state, result, parameters ([`homing`]) | axis |
+//! | watchdog | 0x05nn | communication watchdog per bus ([`watchdog`]) | bridge |
+//! | axis | 0x06nn | signed speed, position, target, state ([`axis`]) | axis |
+//!
+//! # Chip registers
+//!
+//! * **Reads** go to the chip: GetParam through the chain scheduler at the
+//!   next control tick, so a read answers [`ExtError::NotYet`] first and the
+//!   value once it came back (each bus waits its own way: the Modbus server
+//!   retries before it answers, I2C returns a not-ready status byte, USB
+//!   sends the response when it is there). STATUS is read with
+//!   GetParam(STATUS), which clears none of the latched flags the bridge's
+//!   own GetStatus reads rely on.
+//! * **Writes**: only the tuning registers ([`TUNABLE`]) are writable; they
+//!   are stored with the settings ("write settings" persists them) and
+//!   written again after every chip reset. The chip's access class is
+//!   enforced before anything goes on the wire: a WS register only while
+//!   the axis rests, a WH register only while its bridges are off (asleep),
+//!   else [`ExtError::Refused`] (Modbus 04), counted. MIN_SPEED takes 0 or a
+//!   value with LSPD_OPT (bit 12) set — any other start speed would clamp
+//!   the bridge's Run setpoints; CONFIG keeps the board's clock source and
+//!   SW_MODE = 1 (bits 4:0). Every other register belongs to the bridge and
+//!   is read-only here ([`ExtError::IllegalAddress`], Modbus 02): ABS_POS
+//!   (Set position / Set zero), EL_POS, MARK, SPEED, ACC, DEC, MAX_SPEED
+//!   (0x51–0x53), KVAL_* (the currents), ADC_OUT, STEP_MODE (0x33), STATUS.
+
+use super::{Bridge, Bus};
+use crate::motion::AxisState;
+use crate::postep60::settings::{Watchdog, WatchdogAction, TUNABLE, WATCHED_BUSES};
+use crate::postep60::{Query, Value};
+use crate::powerstep::chain::ChainBus;
+use crate::powerstep::registers::{Access, Register};
+
+/// Why an extension access was not done.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ExtError {
+    /// No such register, a read-only one written, or a quantity that does
+    /// not fit (Modbus 02).
+    IllegalAddress,
+    /// A value out of range (Modbus 03).
+    IllegalValue,
+    /// Not now: access class, homing not possible, busy (Modbus 04).
+    Refused,
+    /// The value is being read from the chip: ask again after the next tick.
+    NotYet,
+}
+
+/// Block (high byte) numbers.
+pub mod block {
+    pub const CHIP: u8 = 0x01;
+    pub const IOEXT: u8 = 0x02;
+    pub const DIAG: u8 = 0x03;
+    pub const HOMING: u8 = 0x04;
+    pub const WATCHDOG: u8 = 0x05;
+    pub const AXIS: u8 = 0x06;
+}
+
+/// Diagnostics (0x03nn): u32 counters in two registers, high word first.
+pub mod diag {
+    pub const MODBUS_FRAMES: u8 = 0x00;
+    pub const MODBUS_CRC_ERRORS: u8 = 0x02;
+    /// Gaps, bad characters and overruns.
+    pub const MODBUS_FRAMING_ERRORS: u8 = 0x04;
+    pub const MODBUS_EXCEPTIONS: u8 = 0x06;
+    /// Exceptions 01, 02, 03, 04.
+    pub const MODBUS_EXCEPTION_01: u8 = 0x08;
+    pub const I2C_UNKNOWN: u8 = 0x10;
+    pub const I2C_SHORT: u8 = 0x12;
+    pub const USB_REPORTS: u8 = 0x14;
+    pub const USB_BAD: u8 = 0x16;
+    pub const USB_UNKNOWN: u8 = 0x18;
+    pub const CHAIN_ERRORS: u8 = 0x1A;
+    pub const REFUSED: u8 = 0x1C;
+    pub const SAVES: u8 = 0x1E;
+    pub const SAVE_ERRORS: u8 = 0x20;
+    pub const LIMIT_CLAMPS: u8 = 0x22;
+    pub const CHIP_RESETS: u8 = 0x24;
+    pub const WATCHDOG_TRIPS: u8 = 0x26;
+    pub const UPTIME_S: u8 = 0x28;
+    pub const TICK_LAST_US: u8 = 0x2A;
+    pub const TICK_MAX_US: u8 = 0x2C;
+    pub const TICK_OVERRUNS: u8 = 0x2E;
+    /// Chip resets of axis 0..7, one register each.
+    pub const CHIP_RESETS_AXIS0: u8 = 0x30;
+    pub const CHAIN_LENGTH: u8 = 0x40;
+    /// 0 unknown, 1 power-on, 2 reset pin, 3 watchdog, 4 software, 5 brown-out.
+    pub const RESET_CAUSE: u8 = 0x41;
+    /// 0 loaded from the store, 1 store empty, 2 store unreadable.
+    pub const SETTINGS_SOURCE: u8 = 0x42;
+    /// major · 256 + minor.
+    pub const FIRMWARE_VERSION: u8 = 0x43;
+    /// u32.
+    pub const BUILD_ID: u8 = 0x44;
+    /// 0 no save yet, 1 the last save succeeded, 2 it failed.
+    pub const LAST_SAVE: u8 = 0x46;
+    pub const LEN: usize = 0x47;
+}
+
+/// Homing (0x04nn, per axis).
+pub mod homing {
+    /// Write 1 start, 0 abort; reads the state (0 idle, 1 clearing the
+    /// switch, 2 searching, 3 releasing, 4 done, 5 failed).
+    pub const COMMAND: u8 = 0x00;
+    /// 0 none, 1 switch not found, 2 timeout, 3 switch disabled, 4 aborted,
+    /// 5 fault, 6 not ready (moving, asleep, faulted).
+    pub const RESULT: u8 = 0x01;
+    /// 1 while position 0 is the switch edge.
+    pub const HOMED: u8 = 0x02;
+    /// 0 reverse, 1 forward.
+    pub const DIRECTION: u8 = 0x03;
+    /// u32 logical steps/s.
+    pub const SEARCH_SPEED: u8 = 0x04;
+    pub const RELEASE_SPEED: u8 = 0x06;
+    /// u32 logical steps, 0 = no limit.
+    pub const MAX_TRAVEL: u8 = 0x08;
+    /// s, 0 = no limit.
+    pub const TIMEOUT_S: u8 = 0x0A;
+    pub const LEN: usize = 0x0B;
+}
+
+/// Communication watchdog (0x05nn, bridge-wide).
+pub mod watchdog {
+    /// Timeout ms (0 = off) and action (0 hold, 1 soft stop, 2 bridges
+    /// off) of Modbus, I2C, USB: 0x00/0x01, 0x02/0x03, 0x04/0x05.
+    pub const MODBUS_TIMEOUT_MS: u8 = 0x00;
+    /// Trips of Modbus, I2C, USB (read).
+    pub const TRIPS: u8 = 0x06;
+    /// Bit per bus: tripped and not heard from since (read).
+    pub const TRIPPED: u8 = 0x09;
+    pub const LEN: usize = 0x0A;
+}
+
+/// Axis state (0x06nn, per axis, read-only).
+pub mod axis {
+    /// i32 steps/s, signed (0x44 is its magnitude).
+    pub const SPEED: u8 = 0x00;
+    /// i32 logical steps.
+    pub const POSITION: u8 = 0x02;
+    pub const TARGET: u8 = 0x04;
+    /// 0 setup, 1 idle, 2 streaming, 3 stopping, 4 landing, 5 homing.
+    pub const STATE: u8 = 0x06;
+    /// i16 microsteps.
+    pub const FOLLOWING_ERROR: u8 = 0x07;
+    /// The 0x25 fault bits.
+    pub const FAULTS: u8 = 0x08;
+    /// The chip's STATUS as last read.
+    pub const CHIP_STATUS: u8 = 0x09;
+    pub const LEN: usize = 0x0A;
+}
+
+fn put32(regs: &mut [u16], at: u8, v: u32) {
+    let at = usize::from(at);
+    if let Some(s) = regs.get_mut(at..at + 2) {
+        s.copy_from_slice(&[(v >> 16) as u16, v as u16]);
+    }
+}
+
+fn get32(data: &[u16]) -> u32 {
+    match data {
+        [hi, lo] => u32::from(*hi) << 16 | u32::from(*lo),
+        _ => 0,
+    }
+}
+
+/// Copy `out.len()` registers of `block` from `offset`.
+fn copy_out(block: &[u16], offset: u8, out: &mut [u16]) -> Result<(), ExtError> {
+    let start = usize::from(offset);
+    let src = block
+        .get(start..start.saturating_add(out.len()))
+        .ok_or(ExtError::IllegalAddress)?;
+    out.copy_from_slice(src);
+    Ok(())
+}
+
+impl<B: ChainBus> Bridge<B> {
+    /// Read `out.len()` registers at `address` for axis `k`.
+    pub fn ext_read(&mut self, k: usize, address: u16, out: &mut [u16]) -> Result<(), ExtError> {
+        let [blk, offset] = address.to_be_bytes();
+        match blk {
+            block::CHIP => self.chip_read(k, offset, out),
+            block::DIAG => copy_out(&self.diag_block(), offset, out),
+            block::HOMING => copy_out(&self.homing_block(k)?, offset, out),
+            block::WATCHDOG => copy_out(&self.watchdog_block(), offset, out),
+            block::AXIS => copy_out(&self.axis_block(k)?, offset, out),
+            _ => Err(ExtError::IllegalAddress),
+        }
+    }
+
+    /// Write `data` at `address` for axis `k`.
+    pub fn ext_write(&mut self, k: usize, address: u16, data: &[u16]) -> Result<(), ExtError> {
+        let [blk, offset] = address.to_be_bytes();
+        let r = match blk {
+            block::CHIP => self.chip_write(k, offset, data),
+            block::DIAG if offset == diag::MODBUS_FRAMES => {
+                self.clear_diagnostics();
+                Ok(())
+            }
+            block::HOMING => self.homing_write(k, offset, data),
+            block::WATCHDOG => self.watchdog_write(offset, data),
+            _ => Err(ExtError::IllegalAddress),
+        };
+        if r == Err(ExtError::Refused) {
+            self.diag.refused = self.diag.refused.saturating_add(1);
+        }
+        r
+    }
+
+    fn chip_read(&mut self, k: usize, offset: u8, out: &mut [u16]) -> Result<(), ExtError> {
+        let reg = Register::from_address(offset).ok_or(ExtError::IllegalAddress)?;
+        let width = if reg.bytes() == 3 { 2 } else { 1 };
+        if out.len() != width {
+            return Err(ExtError::IllegalAddress);
+        }
+        let axis = self.group.axis_mut(k).ok_or(ExtError::IllegalAddress)?;
+        let v = axis.read_register(reg).ok_or(ExtError::NotYet)?;
+        match out {
+            [one] => *one = v as u16,
+            [hi, lo] => {
+                *hi = (v >> 16) as u16;
+                *lo = v as u16;
+            }
+            _ => {}
+        }
+        Ok(())
+    }
+
+    fn chip_write(&mut self, k: usize, offset: u8, data: &[u16]) -> Result<(), ExtError> {
+        let reg = Register::from_address(offset).ok_or(ExtError::IllegalAddress)?;
+        if !TUNABLE.contains(&reg) {
+            return Err(ExtError::IllegalAddress);
+        }
+        let value = match data {
+            [v] => *v,
+            _ => return Err(ExtError::IllegalAddress),
+        };
+        if u32::from(value) & !reg.mask() != 0 {
+            return Err(ExtError::IllegalValue);
+        }
+        let value = match reg {
+            // 0, or LSPD_OPT with its threshold: the start speed stays 0.
+            Register::MinSpeed if value != 0 && value & 1 << 12 == 0 => {
+                return Err(ExtError::IllegalValue)
+            }
+            // The board's clock source and SW_MODE = 1 stay.
+            Register::Config => (value & !0x1F) | (self.board.config_register() & 0x1F),
+            _ => value,
+        };
+        let (Some(d), Some(a)) = (self.devices.get_mut(k), self.group.axis_mut(k)) else {
+            return Err(ExtError::IllegalAddress);
+        };
+        let rests = a.is_settled() && !a.status().busy();
+        let allowed = match reg.access() {
+            Access::Always => true,
+            Access::WhenStopped => rests,
+            Access::WhenHiZ => rests && a.is_asleep(),
+            Access::ReadOnly => false,
+        };
+        if !allowed || self.saving || self.run_mode == super::RunMode::Boot {
+            return Err(ExtError::Refused);
+        }
+        if d.set_tuning(reg, value, a) {
+            Ok(())
+        } else {
+            Err(ExtError::IllegalAddress)
+        }
+    }
+
+    fn diag_block(&self) -> [u16; diag::LEN] {
+        let mut r = [0u16; diag::LEN];
+        let m = self.modbus_stats();
+        let d = &self.diag;
+        let counters = [
+            (diag::MODBUS_FRAMES, m.frames_ok),
+            (diag::MODBUS_CRC_ERRORS, m.crc_errors),
+            (
+                diag::MODBUS_FRAMING_ERRORS,
+                m.gaps
+                    .saturating_add(m.bad_characters)
+                    .saturating_add(m.overruns),
+            ),
+            (diag::MODBUS_EXCEPTIONS, m.exceptions),
+            (diag::I2C_UNKNOWN, d.i2c_unknown),
+            (diag::I2C_SHORT, d.i2c_short),
+            (diag::USB_REPORTS, d.usb_reports),
+            (diag::USB_BAD, d.usb_bad),
+            (diag::USB_UNKNOWN, d.usb_unknown),
+            (diag::CHAIN_ERRORS, d.chain_errors),
+            (diag::REFUSED, d.refused),
+            (diag::SAVES, d.saves),
+            (diag::SAVE_ERRORS, d.save_errors),
+            (diag::LIMIT_CLAMPS, d.limit_clamps),
+            (diag::CHIP_RESETS, d.chip_resets),
+            (diag::WATCHDOG_TRIPS, d.watchdog_trips),
+            (diag::UPTIME_S, (self.now_ms / 1000) as u32),
+            (diag::TICK_LAST_US, self.timing.last_us),
+            (diag::TICK_MAX_US, self.timing.max_us),
+            (diag::TICK_OVERRUNS, self.timing.overruns),
+        ];
+        for (at, v) in counters {
+            put32(&mut r, at, v);
+        }
+        for (i, x) in m.exceptions_by_code.iter().enumerate() {
+            put32(&mut r, diag::MODBUS_EXCEPTION_01 + 2 * i as u8, *x);
+        }
+        for (i, a) in self.group.iter().enumerate() {
+            let base = self.resets_base.get(i).copied().unwrap_or(0);
+            if let Some(slot) = r.get_mut(usize::from(diag::CHIP_RESETS_AXIS0) + i) {
+                *slot = a.chip_resets().wrapping_sub(base).min(0xFFFF) as u16;
+            }
+        }
+        let words = [
+            (diag::CHAIN_LENGTH, self.axes() as u16),
+            (diag::RESET_CAUSE, self.reset_cause as u16),
+            (diag::SETTINGS_SOURCE, self.source as u16),
+            (diag::FIRMWARE_VERSION, {
+                let (major, minor) = crate::postep60::device::FW_VERSION;
+                u16::from(major) << 8 | u16::from(minor)
+            }),
+            (diag::LAST_SAVE, self.last_save),
+        ];
+        for (at, v) in words {
+            if let Some(slot) = r.get_mut(usize::from(at)) {
+                *slot = v;
+            }
+        }
+        put32(&mut r, diag::BUILD_ID, self.build_id);
+        r
+    }
+
+    fn homing_block(&self, k: usize) -> Result<[u16; homing::LEN], ExtError> {
+        let (Some(d), Some(a)) = (self.devices.get(k), self.group.axis(k)) else {
+            return Err(ExtError::IllegalAddress);
+        };
+        let h = &d.settings.homing;
+        let state = a.homing_state();
+        let mut r = [0u16; homing::LEN];
+        r[usize::from(homing::COMMAND)] = state.code();
+        r[usize::from(homing::RESULT)] = match state {
+            crate::motion::HomingState::Failed(e) => e.code(),
+            _ => d.homing_refusal().map_or(0, |e| e.code()),
+        };
+        r[usize::from(homing::HOMED)] = u16::from(a.is_homed());
+        r[usize::from(homing::DIRECTION)] = u16::from(h.forward);
+        put32(&mut r, homing::SEARCH_SPEED, h.search_speed);
+        put32(&mut r, homing::RELEASE_SPEED, h.release_speed);
+        put32(&mut r, homing::MAX_TRAVEL, h.max_travel);
+        r[usize::from(homing::TIMEOUT_S)] = h.timeout_s;
+        Ok(r)
+    }
+
+    fn homing_write(&mut self, k: usize, offset: u8, data: &[u16]) -> Result<(), ExtError> {
+        if self.saving || self.run_mode == super::RunMode::Boot {
+            return Err(ExtError::Refused);
+        }
+        let (Some(d), Some(a)) = (self.devices.get_mut(k), self.group.axis_mut(k)) else {
+            return Err(ExtError::IllegalAddress);
+        };
+        let h = &mut d.settings.homing;
+        match (offset, data) {
+            (homing::COMMAND, [1]) => match d.start_homing(a) {
+                Ok(()) => Ok(()),
+                Err(e) => {
+                    d.note_homing_refusal(e);
+                    Err(ExtError::Refused)
+                }
+            },
+            (homing::COMMAND, [0]) => {
+                if a.is_homing() {
+                    a.stop_now();
+                }
+                Ok(())
+            }
+            (homing::COMMAND, [_]) => Err(ExtError::IllegalValue),
+            (homing::DIRECTION, [v]) if *v <= 1 => {
+                h.forward = *v == 1;
+                Ok(())
+            }
+            (homing::DIRECTION, [_]) => Err(ExtError::IllegalValue),
+            (homing::SEARCH_SPEED, [_, _]) => {
+                h.search_speed = get32(data).max(1);
+                Ok(())
+            }
+            (homing::RELEASE_SPEED, [_, _]) => {
+                h.release_speed = get32(data).max(1);
+                Ok(())
+            }
+            (homing::MAX_TRAVEL, [_, _]) => {
+                h.max_travel = get32(data);
+                Ok(())
+            }
+            (homing::TIMEOUT_S, [v]) => {
+                h.timeout_s = *v;
+                Ok(())
+            }
+            _ => Err(ExtError::IllegalAddress),
+        }
+    }
+
+    fn watchdog_block(&self) -> [u16; watchdog::LEN] {
+        let mut r = [0u16; watchdog::LEN];
+        let mut tripped = 0u16;
+        for (i, (w, s)) in self.watchdog.iter().zip(self.watch.iter()).enumerate() {
+            if let Some(slot) = r.get_mut(2 * i..2 * i + 2) {
+                slot.copy_from_slice(&[w.timeout_ms, w.action as u16]);
+            }
+            if let Some(slot) = r.get_mut(usize::from(watchdog::TRIPS) + i) {
+                *slot = s.trips.min(0xFFFF) as u16;
+            }
+            if s.tripped {
+                tripped |= 1 << i;
+            }
+        }
+        r[usize::from(watchdog::TRIPPED)] = tripped;
+        r
+    }
+
+    fn watchdog_write(&mut self, offset: u8, data: &[u16]) -> Result<(), ExtError> {
+        let mut next = self.watchdog;
+        for (i, v) in data.iter().enumerate() {
+            let at = usize::from(offset) + i;
+            let w: &mut Watchdog = next.get_mut(at / 2).ok_or(ExtError::IllegalAddress)?;
+            if at % 2 == 0 {
+                w.timeout_ms = *v;
+            } else {
+                w.action = u8::try_from(*v)
+                    .ok()
+                    .and_then(WatchdogAction::from_code)
+                    .ok_or(ExtError::IllegalValue)?;
+            }
+        }
+        if usize::from(offset) + data.len() > 2 * WATCHED_BUSES {
+            return Err(ExtError::IllegalAddress);
+        }
+        self.watchdog = next;
+        Ok(())
+    }
+
+    fn axis_block(&self, k: usize) -> Result<[u16; axis::LEN], ExtError> {
+        let (Some(d), Some(a)) = (self.devices.get(k), self.group.axis(k)) else {
+            return Err(ExtError::IllegalAddress);
+        };
+        let sat = |v: i64| v.clamp(i64::from(i32::MIN), i64::from(i32::MAX)) as i32 as u32;
+        let mut r = [0u16; axis::LEN];
+        put32(&mut r, axis::SPEED, sat(a.profile().velocity()));
+        let pos = match self.query(k, Query::Position) {
+            Some(Value::I32(p)) => p as u32,
+            _ => 0,
+        };
+        put32(&mut r, axis::POSITION, pos);
+        put32(&mut r, axis::TARGET, sat(a.required_position()));
+        r[usize::from(axis::STATE)] = match a.state() {
+            AxisState::Setup(_) => 0,
+            AxisState::Idle => 1,
+            AxisState::Streaming => 2,
+            AxisState::Stopping => 3,
+            AxisState::Landing => 4,
+            AxisState::Homing => 5,
+        };
+        r[usize::from(axis::FOLLOWING_ERROR)] =
+            a.following_error()
+                .clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16 as u16;
+        r[usize::from(axis::FAULTS)] = u16::from(d.faults());
+        r[usize::from(axis::CHIP_STATUS)] = a.status().raw();
+        Ok(r)
+    }
+
+    /// A bus was heard from: a valid request arrived (watchdog).
+    pub(super) fn heard(&mut self, bus: Bus) {
+        if let Some(w) = self.watch.get_mut(bus as usize) {
+            w.last_ms = self.now_ms;
+            w.tripped = false;
+        }
+    }
+}
