@@ -14,7 +14,7 @@ use host_tests::i2c_bench::I2cBench;
 use libfuzzer_sys::fuzz_target;
 
 /// Commands that may legitimately start or change motion.
-const MOTION: [u8; 7] = [0x50, 0x54, 0x05, 0x55, 0x71, 0x5E, 0x70];
+const MOTION: [u8; 8] = [0x50, 0x54, 0x05, 0x55, 0x71, 0x5E, 0x70, 0x73];
 
 fuzz_target!(|data: &[u8]| {
     let mut b = I2cBench::new(2, Settings::FACTORY);

@@ -95,6 +95,8 @@ impl ModbusBench {
             if let Some(resp) = self.server.poll(d, &mut self.bridge) {
                 self.sent.push((d, resp.to_vec()));
             }
+            // As the firmware's Modbus task: the counters go to the bridge.
+            self.bridge.set_modbus_stats(self.server.stats());
         }
     }
 
@@ -139,6 +141,13 @@ impl ModbusBench {
     /// end the frame, then collect what it sent (in order).
     pub fn collect(&mut self) -> Vec<Vec<u8>> {
         self.pause(u64::from(self.timing.t35_us) + 1);
+        // A deferred extension read answers a few ms later.
+        while self.sent.is_empty() {
+            match self.server.deadline() {
+                Some(d) if d <= self.now_us + 100_000 => self.advance_to(d.max(self.now_us + 1)),
+                _ => break,
+            }
+        }
         let out: Vec<Vec<u8>> = self.sent.drain(..).map(|(_, r)| r).collect();
         // Model the reply on the wire and the turnaround before the master
         // talks again.
@@ -422,19 +431,35 @@ pub fn check_stream(records: &[(u8, u64)], fix_crc: bool) -> StreamReport {
     let mut model = FrameModel::new(timing);
     let mut report = StreamReport::default();
     let mut motion = false;
+    let mut waiting = None;
     let start = line.now_us;
     for (byte, dt) in records {
         let t = line.now_us + dt;
         while let Some(d) = line.step_until(t) {
-            checked_poll(&mut line, &mut model, d, &mut report, &mut motion);
+            checked_poll(
+                &mut line,
+                &mut model,
+                d,
+                &mut report,
+                &mut motion,
+                &mut waiting,
+            );
         }
         line.server.on_byte(byte, t);
         model.push(byte, t);
-        assert_eq!(line.server.deadline(), model.deadline());
+        deadlines_agree(&line, &model, &waiting);
     }
-    let end = line.now_us + u64::from(timing.t35_us);
+    // Frames, and extension reads that wait for the chip (≤ 50 ms).
+    let end = line.now_us + u64::from(timing.t35_us) + 60_000;
     while let Some(d) = line.step_until(end) {
-        checked_poll(&mut line, &mut model, d, &mut report, &mut motion);
+        checked_poll(
+            &mut line,
+            &mut model,
+            d,
+            &mut report,
+            &mut motion,
+            &mut waiting,
+        );
     }
     assert_eq!(line.server.deadline(), None);
     line.run(50);
@@ -447,15 +472,47 @@ pub fn check_stream(records: &[(u8, u64)], fix_crc: bool) -> StreamReport {
     report
 }
 
+/// The server polls at the model's frame ends, and — while an extension
+/// read waits for the chip — at its retry times too.
+fn deadlines_agree(line: &ModbusBench, model: &FrameModel, waiting: &Option<(Vec<u8>, u8)>) {
+    let server = line.server.deadline();
+    if waiting.is_some() {
+        match (server, model.deadline()) {
+            (Some(s), Some(m)) => assert!(s <= m, "server deadline after the frame end"),
+            (s, m) => assert!(s.is_some() || m.is_none()),
+        }
+    } else {
+        assert_eq!(server, model.deadline());
+    }
+}
+
+/// An extension write that may start motion (homing, 0x04nn).
+fn ext_motion(body: &[u8]) -> bool {
+    matches!(body, [_, 0x06 | 0x10, 0x04, ..])
+}
+
 fn checked_poll(
     line: &mut ModbusBench,
     model: &mut FrameModel,
     at: u64,
     report: &mut StreamReport,
     motion: &mut bool,
+    waiting: &mut Option<(Vec<u8>, u8)>,
 ) {
-    assert_eq!(Some(at), model.deadline(), "poll at the model's frame end");
-    let body = model.take();
+    let frame_end = Some(at) == model.deadline();
+    assert!(
+        frame_end || waiting.is_some(),
+        "poll at the model's frame end"
+    );
+    let body = if frame_end { model.take() } else { None };
+    if frame_end && waiting.is_some() {
+        // A new frame: the waiting read is dropped.
+        *waiting = None;
+    }
+    if let Some(b) = body.as_ref() {
+        *motion |= ext_motion(b);
+    }
+    let deferred_before = line.server.stats().deferred;
     // Which ids are ours is decided before the frame runs (0x04 may move them).
     let ours = body.as_ref().and_then(|b| {
         let id = b[0];
@@ -470,6 +527,25 @@ fn checked_poll(
     if body.is_some() {
         report.intact_frames += 1;
     }
+    let (body, ours) = if !frame_end {
+        // A retry of the waiting extension read: it answers now or later.
+        let w = waiting.clone();
+        if resp.is_some() {
+            *waiting = None;
+        }
+        match w {
+            Some((b, id)) => (Some(b), Some(id)),
+            None => (None, None),
+        }
+    } else {
+        if line.server.stats().deferred > deferred_before {
+            let b = body
+                .clone()
+                .expect("a deferred read of a frame that is not intact");
+            *waiting = Some((b, ours.expect("a deferred read for another id")));
+        }
+        (body, ours)
+    };
     if !log.is_empty() {
         let body = body
             .as_ref()

@@ -197,7 +197,7 @@ pub fn read<'a>(cls: &mut UsbBench<'a>, dev: &mut Host<'a>) -> Vec<u8> {
 
 /// OUT-report commands that may start or change motion (or stop it, which
 /// the check treats the same: the chip may then differ from "untouched").
-pub const MOTION: [u8; 9] = [0x02, 0x80, 0x83, 0x82, 0x90, 0xA1, 0xB1, 0xB2, 0xB3];
+pub const MOTION: [u8; 10] = [0x02, 0x80, 0x83, 0x82, 0x90, 0xA1, 0xB1, 0xB2, 0xB3, 0xE1];
 
 /// Feed arbitrary OUT reports (and control ticks) straight to the bridge's
 /// USB entry points, 2 axes on simulated chips, and check: nothing panics;

@@ -7,8 +7,9 @@ use proptest::prelude::*;
 
 /// Command bytes that may legitimately start motion or change what moves:
 /// Set position, Set requested speed, Set driver mode (auto run), invert,
-/// soft stop (changes the target), set zero, select axis.
-const MOTION: [u8; 7] = [0x50, 0x54, 0x05, 0x55, 0x71, 0x5E, 0x70];
+/// soft stop (changes the target), set zero, select axis, extension
+/// writes (homing).
+const MOTION: [u8; 8] = [0x50, 0x54, 0x05, 0x55, 0x71, 0x5E, 0x70, 0x73];
 
 #[derive(Clone, Debug)]
 enum Op {

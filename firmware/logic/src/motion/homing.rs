@@ -268,8 +268,12 @@ impl Homing {
             if p.max_travel > 0 && travel > p.max_travel {
                 return Step::Fail(HomingError::NotFound);
             }
-            if p.nc && pressed {
-                // The NC search is a Run: the axis stops it.
+            if p.nc {
+                // The NC search is a Run (busy only while it accelerates):
+                // the axis stops it when the switch opens.
+                if !pressed {
+                    return Step::Wait;
+                }
                 self.state = HomingState::Releasing;
                 self.sent = false;
                 return Step::Send([Some(Command::HardStop), None]);

@@ -106,6 +106,12 @@ impl Powerstep01 {
             Direction::Reverse => el.wrapping_sub(el_steps),
         };
         self.set_reg(Register::ElPos, el);
+        // The shaft turns whatever ABS_POS says (1/128 steps).
+        let turned = i64::try_from(steps.saturating_mul(u128::from(unit))).unwrap_or(i64::MAX);
+        self.shaft = match dir {
+            Direction::Forward => self.shaft.saturating_add(turned),
+            Direction::Reverse => self.shaft.saturating_sub(turned),
+        };
     }
 
     /// Move by `dist` full-step units (2⁻⁴⁰ step) in the current direction.

@@ -241,6 +241,10 @@ pub struct Powerstep01 {
     v: u64,
     /// Progress towards the next microstep in `dir`, 2⁻⁴⁰ microstep.
     frac: u64,
+    /// Where the motor shaft is, 1/128 full steps since the chip was
+    /// created: physical, so neither ABS_POS writes, ResetPos, the switch
+    /// ACT nor a power cycle move it (test backdoor for switches on the axis).
+    shaft: i64,
     motion: Motion,
     stck_mod: bool,
     // --- inputs and flags ---
@@ -302,6 +306,7 @@ impl Powerstep01 {
             dir: Direction::Forward,
             v: 0,
             frac: 0,
+            shaft: 0,
             motion: Motion::Idle,
             stck_mod: false,
             sw_closed: false,
@@ -397,6 +402,11 @@ impl Powerstep01 {
     /// are computed and ignore this.
     pub fn set_register_raw(&mut self, r: Register, v: u32) {
         self.write_reg(r, v);
+    }
+
+    /// The motor shaft's position, 1/128 full steps (see the field).
+    pub fn shaft_position(&self) -> i64 {
+        self.shaft
     }
 
     /// ABS_POS, sign-extended.

@@ -1,0 +1,254 @@
+//! Extension 0x04nn: homing against an end switch on the chip's SW input,
+//! on the simulated chain. The switch is a cam on the motor shaft (the
+//! simulator's shaft position, which ABS_POS writes do not move): pressed
+//! while the shaft is at or below the edge.
+
+use bridge_logic::bridge::Bridge;
+use bridge_logic::postep60::{Query, Request, Settings, Value};
+use bridge_logic::sim::{Fault, SimChain, SimClock};
+use host_tests::modbus_bench::ModbusBench;
+use host_tests::sim_bridge::{chip, chip_mut, new_bridge, TICK_US};
+
+/// Homing registers.
+const CMD: u16 = 0x0400;
+const RESULT: u16 = 0x0401;
+const HOMED: u16 = 0x0402;
+const TRAVEL: u16 = 0x0408;
+const TIMEOUT: u16 = 0x040A;
+
+/// A bridge, one axis at 1/16 on a 1/128 chip, a switch at `edge` (shaft
+/// units: 1/128 steps), normally open or closed.
+struct Home {
+    bridge: Bridge<SimChain>,
+    clock: SimClock,
+    edge: i64,
+    nc: bool,
+}
+
+impl Home {
+    fn new(edge: i64, nc: bool, settings: Option<Settings>) -> Home {
+        let mut s = settings.unwrap_or(Settings::FACTORY);
+        s.axes[0].end_switch = true;
+        s.axes[0].end_switch_nc = nc;
+        s.axes[0].max_speed = 3200; // 200 full steps/s
+        s.axes[0].acc = 32_000;
+        s.axes[0].dec = 32_000;
+        let mut h = Home {
+            bridge: new_bridge(1, s, bridge_logic::postep60::Board::REFERENCE),
+            clock: SimClock::new(TICK_US),
+            edge,
+            nc,
+        };
+        h.switch();
+        h.run(30);
+        h
+    }
+
+    fn pressed(&self) -> bool {
+        chip(&self.bridge, 0).shaft_position() <= self.edge
+    }
+
+    fn switch(&mut self) {
+        let closed = self.pressed() != self.nc;
+        chip_mut(&mut self.bridge, 0).set_switch(closed);
+    }
+
+    fn run(&mut self, ms: u64) {
+        for _ in 0..ms {
+            self.clock.tick(&mut self.bridge);
+            self.switch();
+        }
+    }
+
+    fn reg(&mut self, address: u16) -> u16 {
+        let mut out = [0u16];
+        self.bridge
+            .ext_read(0, address, &mut out)
+            .expect("readable");
+        out[0]
+    }
+
+    fn write(&mut self, address: u16, data: &[u16]) -> Result<(), bridge_logic::bridge::ExtError> {
+        self.bridge.ext_write(0, address, data)
+    }
+
+    /// Run until homing left its running states (panics after `cap` ms).
+    fn home(&mut self, cap: u64) -> u16 {
+        self.write(CMD, &[1]).expect("homing starts");
+        for _ in 0..cap {
+            self.run(1);
+            let state = self.reg(CMD);
+            if state >= 4 {
+                self.settle();
+                return state;
+            }
+        }
+        panic!("homing did not end in {cap} ms");
+    }
+
+    fn settle(&mut self) {
+        for _ in 0..10_000 {
+            if self.bridge.axis(0).unwrap().is_settled() {
+                return;
+            }
+            self.run(1);
+        }
+        panic!("not settled");
+    }
+
+    /// Shaft position relative to the switch's edge — the first microstep
+    /// where it is released — 1/128 steps.
+    fn past_edge(&self) -> i64 {
+        chip(&self.bridge, 0).shaft_position() - (self.edge + 1)
+    }
+
+    fn abs_pos(&self) -> i64 {
+        i64::from(chip(&self.bridge, 0).abs_pos())
+    }
+}
+
+#[test]
+fn a_normally_open_switch_homes_position_zero_onto_its_edge() {
+    let mut h = Home::new(-12_000, false, None);
+    assert_eq!(h.home(60_000), 4, "done");
+    assert_eq!(h.reg(HOMED), 1);
+    assert_eq!(h.reg(RESULT), 0);
+    // ABS_POS 0 is where the switch released: the shaft stands within a
+    // microstep or two past the edge, and ABS_POS says exactly where.
+    assert!(
+        (0..=3).contains(&h.past_edge()),
+        "{} from the edge",
+        h.past_edge()
+    );
+    assert_eq!(h.abs_pos(), h.past_edge());
+    // The profile takes over exactly: a move lands on its microstep.
+    h.bridge.request(0, Request::SetPosition(1000)).unwrap();
+    h.settle();
+    assert_eq!(h.abs_pos(), 8000);
+    assert_eq!(h.past_edge(), 8000, "8000 µsteps from the edge");
+    assert_eq!(h.bridge.query(0, Query::Position), Some(Value::I32(1000)));
+}
+
+#[test]
+fn a_normally_closed_switch_homes_onto_its_edge_too() {
+    let mut h = Home::new(-6_000, true, None);
+    assert_eq!(h.home(60_000), 4);
+    assert!(
+        (-3..=3).contains(&h.past_edge()),
+        "{} from the edge",
+        h.past_edge()
+    );
+    assert_eq!(h.abs_pos(), h.past_edge());
+}
+
+#[test]
+fn an_axis_already_on_the_switch_moves_off_it_first() {
+    // The shaft (at 0) is below the edge: the switch is pressed at the start.
+    let mut h = Home::new(4_000, false, None);
+    assert!(h.pressed());
+    assert_eq!(h.home(60_000), 4);
+    assert!(
+        (0..=3).contains(&h.past_edge()),
+        "{} from the edge",
+        h.past_edge()
+    );
+    assert_eq!(h.abs_pos(), h.past_edge());
+}
+
+#[test]
+fn a_switch_not_found_within_the_travel_stops_and_reports_it() {
+    let mut h = Home::new(-1_000_000, false, None);
+    h.write(TRAVEL, &[0, 500]).unwrap(); // 500 logical steps = 4000 µsteps
+    assert_eq!(h.home(60_000), 5, "failed");
+    assert_eq!(h.reg(RESULT), 1, "not found");
+    assert_eq!(h.reg(HOMED), 0);
+    // It stopped a little beyond the travel (braking), not far.
+    let travelled = -chip(&h.bridge, 0).shaft_position();
+    assert!((4000..6000).contains(&travelled), "{travelled}");
+}
+
+#[test]
+fn the_timeout_ends_a_search_that_takes_too_long() {
+    let mut h = Home::new(-1_000_000, false, None);
+    h.write(TIMEOUT, &[1]).unwrap();
+    assert_eq!(h.home(5_000), 5);
+    assert_eq!(h.reg(RESULT), 2, "timeout");
+}
+
+#[test]
+fn homing_with_the_end_switch_disabled_is_refused() {
+    let mut s = Settings::FACTORY;
+    s.axes[0].end_switch = false;
+    let mut b = ModbusBench::new(1, s);
+    assert_eq!(b.write(1, CMD, 1), Err(4));
+    assert_eq!(b.read(1, RESULT, 1), Ok(vec![3]), "switch disabled");
+    assert_eq!(b.read(1, CMD, 1), Ok(vec![0]), "idle");
+}
+
+#[test]
+fn a_stop_during_homing_aborts_it() {
+    let mut h = Home::new(-1_000_000, false, None);
+    h.write(CMD, &[1]).unwrap();
+    h.run(300);
+    assert_eq!(h.reg(CMD), 2, "searching");
+    h.bridge.request(0, Request::Stop).unwrap();
+    h.settle();
+    assert_eq!(h.reg(CMD), 5);
+    assert_eq!(h.reg(RESULT), 4, "aborted");
+    assert_eq!(h.reg(HOMED), 0);
+    let p = chip(&h.bridge, 0).shaft_position();
+    h.run(200);
+    assert_eq!(chip(&h.bridge, 0).shaft_position(), p, "stopped");
+}
+
+#[test]
+fn motion_requests_wait_while_homing() {
+    let mut h = Home::new(-1_000_000, false, None);
+    h.write(CMD, &[1]).unwrap();
+    h.run(50);
+    assert!(h.bridge.request(0, Request::SetPosition(100)).is_err());
+}
+
+#[test]
+fn a_chip_reset_forgets_the_home() {
+    let mut h = Home::new(-3_000, false, None);
+    assert_eq!(h.home(60_000), 4);
+    assert_eq!(h.reg(HOMED), 1);
+    chip_mut(&mut h.bridge, 0).inject(Fault::PowerCycle);
+    h.run(20);
+    assert_eq!(h.reg(HOMED), 0);
+}
+
+#[test]
+fn homing_parameters_persist_with_write_settings() {
+    let mut h = Home::new(-3_000, false, None);
+    h.write(0x0403, &[1]).unwrap(); // forward
+    h.write(0x0404, &[0, 4000]).unwrap();
+    h.write(0x0406, &[0, 160]).unwrap();
+    h.write(TRAVEL, &[1, 0]).unwrap();
+    h.write(TIMEOUT, &[30]).unwrap();
+    let s = h.bridge.settings().axes[0].homing;
+    assert!(s.forward);
+    assert_eq!(
+        (s.search_speed, s.release_speed, s.max_travel, s.timeout_s),
+        (4000, 160, 65_536, 30)
+    );
+    let mut out = [0u16; 11];
+    h.bridge.ext_read(0, 0x0400, &mut out).unwrap();
+    assert_eq!(&out[3..], &[1, 0, 4000, 0, 160, 1, 0, 30]);
+}
+
+#[test]
+fn modbus_starts_homing_with_fc06_on_0x0400() {
+    let mut s = Settings::FACTORY;
+    s.axes[0].end_switch = true;
+    let mut b = ModbusBench::new(1, s);
+    // Switch far away: the search starts and runs.
+    assert_eq!(
+        b.transact(&[0x01, 0x06, 0x04, 0x00, 0x00, 0x01, 0x49, 0x3A]),
+        Some([0x01, 0x06, 0x04, 0x00, 0x00, 0x01, 0x49, 0x3A].to_vec())
+    );
+    b.run(100);
+    assert_eq!(b.read(1, CMD, 1), Ok(vec![2]), "searching");
+    assert!(b.chip(0).is_busy());
+}
