@@ -23,6 +23,11 @@
 //!   gives its edges half-period by half-period: exactly n clock periods,
 //!   the configured CPOL/CPHA, CS low from half a period before the first
 //!   edge to half a period after the last.
+//! * **The box's inputs and lamps** ([`mapping`]): a persisted mapping from
+//!   receive bits to BIN1, BIN2, end switch and run/stop per axis (NO/NC,
+//!   debounced over K transfers) and from moving/fault/idle to transmit bits.
+//! * **Persistence** ([`image`]): enable, configuration, transmit data and
+//!   mapping in a fixed, validated, little-endian image.
 
 #![deny(
     clippy::indexing_slicing,
@@ -37,11 +42,18 @@
 
 pub mod clock;
 pub mod config;
+pub mod image;
+pub mod mapping;
 pub mod plan;
 pub mod wire;
 
 pub use clock::{clock_plan, requested_period_ns, ClockPlan, Clocks, Engine, Period};
 pub use config::{Config, SpiMode, WireBits, MAX_BITS, WORDS};
+pub use image::{ImageError, IoSettings, IMAGE_LEN};
+pub use mapping::{
+    AxisInputs, AxisMap, AxisOutputs, Contact, Input, InputBit, Mapping, Output, OutputBit,
+    MAX_AXES,
+};
 pub use plan::{Action, SpiSetup, TimerSetup, TransferPlan};
 pub use wire::{wire, HalfPeriod};
 
