@@ -83,6 +83,8 @@ pub mod plan;
 pub mod registers;
 pub mod wire;
 
+#[cfg(any(test, feature = "sim"))]
+pub mod exercise;
 #[cfg(test)]
 mod tests;
 
