@@ -41,8 +41,10 @@
 //!   else a TIM1-paced engine (exact n periods via the repetition counter).
 //!   The period produced is readable (register 0x0208).
 //! * **Never delays the chain or a bus reply**: the transfer runs on DMA and
-//!   timer hardware; the driver's CPU work runs at the lowest priority
-//!   ([`plan`] says exactly what the driver does).
+//!   timer hardware; the driver's CPU work runs at the lowest priority and
+//!   never locks this state; the control tick calls [`IoExtension::complete`]
+//!   and [`IoExtension::tick`] after its chain batch ([`plan`] says exactly
+//!   what the driver does).
 //! * **SLI mode is refused**: a configuration with bit 28 clear is
 //!   [`IoError::Unsupported`] and changes nothing; I/O options bit 1 (SLI
 //!   LED style) reads 0. SLI drives Copley's CAN/EtherCAT status LEDs and

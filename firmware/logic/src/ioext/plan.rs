@@ -39,16 +39,17 @@
 //!      end is CEN reading 0 after the last sample.
 //! 4. Wait [`TransferPlan::half_period_ns`] after the last clock edge,
 //!    then raise CS unless [`TransferPlan::cs_hold`].
-//! 5. Hand the received bits to
-//!    [`IoExtension::complete`](super::IoExtension::complete); on a DMA or
-//!    bus error stop the engine, raise CS and call
-//!    [`IoExtension::fail`](super::IoExtension::fail) instead.
+//! 5. Queue the received bits; the control tick hands them to
+//!    [`IoExtension::complete`](super::IoExtension::complete) after its
+//!    chain batch. On a DMA or bus error stop the engine, raise CS and queue
+//!    a failure ([`IoExtension::fail`](super::IoExtension::fail)).
 //!
-//! All of it runs at the lowest interrupt priority (a software task for the
-//! start, the DMA/timer interrupt for the end): the chain's control tick and
-//! the bus handlers preempt it, which can only lengthen the idle phases of
-//! the SPI engine between frames or delay the start — never shorten a clock
-//! period, which the peripheral or the timer makes.
+//! The driver runs at the lowest priority (a software task that gets the
+//! plan from the control tick and starts it, the DMA interrupt that ends
+//! it) and never locks the extension's state, so it never holds up the
+//! control tick; being preempted can only delay a start or lengthen the SPI
+//! engine's gaps between frames — never shorten a clock period, which the
+//! peripheral or the timer makes.
 //!
 //! [`Action::Disable`]: raise CS and stop driving the port (SCK, MOSI back
 //! to inputs): the extension was switched off.
