@@ -22,6 +22,7 @@
 #![warn(missing_debug_implementations)]
 
 pub mod bridge;
+pub mod ioext;
 pub mod motion;
 pub mod persist;
 pub mod postep60;

@@ -10,13 +10,16 @@
 //! * [`clock`] — virtual time: a control tick, then one tick period of chip
 //!   time; the one clock every simulated control loop runs on.
 //! * [`flash`] — NOR flash with power-cut injection, for the settings store.
+//! * [`shift`] — 74HC165/74HC595 shift registers on the I/O extension's SPI port.
 
 pub mod chain;
 pub mod clock;
 pub mod flash;
 pub mod powerstep01;
+pub mod shift;
 
 pub use chain::SimChain;
 pub use clock::{SimClock, SimControl};
 pub use flash::{SimFlash, SimFlashError};
 pub use powerstep01::{Fault, Powerstep01, TICK_NS};
+pub use shift::ShiftChain;

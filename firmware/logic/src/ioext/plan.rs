@@ -1,0 +1,307 @@
+//! What the firmware executes: a [`TransferPlan`] is complete — bit count,
+//! mode, engine with its register values, CS handling and the bits — so the
+//! SPI2 / TIM1 driver takes no decision of its own.
+//!
+//! # What the driver does with a plan
+//!
+//! Pins (suggested, `board.rs` decides): SCK = PB13 (SPI2_SCK AF5 for the
+//! SPI engine, TIM1_CH1N AF1 for the timer engine), MISO = PB14, MOSI =
+//! PB15, CS = a push-pull GPIO with an external pull-up (CS must read high
+//! while the port is not configured). For every plan:
+//!
+//! 1. If the engine differs from the last plan's, switch SCK's alternate
+//!    function; MOSI/MISO are AF5 for the SPI engine, GPIO output / input
+//!    for the timer engine. SCK must keep the idle level `mode.cpol`
+//!    throughout.
+//! 2. Unless [`TransferPlan::cs_low_before`], drive CS low. The first clock
+//!    edge must come at least [`TransferPlan::half_period_ns`] after CS fell
+//!    (the timer engine's first phase is exactly that; the SPI engine waits
+//!    before it writes the first frame).
+//! 3. Run the engine:
+//!    * [`SpiSetup`] — SPI2 master, 8-bit frames, MSB first, software NSS,
+//!      CR1.BR = `br`, CPOL/CPHA = `mode`; `frames` bytes out of
+//!      [`TransferPlan::tx_byte`]`(0..frames)` and as many in, by DMA1
+//!      (SPI2_TX stream 4, SPI2_RX stream 3, channel 0). At the end wait for
+//!      BSY = 0; the received bytes, in order, go to
+//!      [`WireBits::from_bytes`].
+//!    * [`TimerSetup`] — TIM1: PSC, ARR, RCR (= bits − 1) as given, loaded
+//!      with EGR.UG before any DMA request is enabled; one-pulse mode;
+//!      CH1 in PWM mode 2 with CCR1 = `ccr_sck` and only the complementary
+//!      output enabled (CC1E = 0, CC1NE = 1, CC1NP = `mode.cpol`, MOE = 1:
+//!      OC1N = OC1REF xor CC1NP, so SCK is `cpol` while CNT < CCR1 and
+//!      `!cpol` from CCR1 to ARR, and `cpol` once the timer stops). Before
+//!      CEN: MOSI = [`TimerSetup::first_mosi`]. CC3 (CCR3 = `ccr_mosi`)
+//!      requests DMA2 stream 6 / channel 6 to write the next entry of
+//!      [`TransferPlan::mosi_bsrr`] to GPIO BSRR (`bits` entries); CC2
+//!      (CCR2 = `ccr_sample`) requests DMA2 stream 2 / channel 6 to copy
+//!      GPIO IDR into a buffer (`bits` half-words), which
+//!      [`WireBits::from_port_samples`] turns into the received bits. The
+//!      end is CEN reading 0 after the last sample.
+//! 4. Wait [`TransferPlan::half_period_ns`] after the last clock edge,
+//!    then raise CS unless [`TransferPlan::cs_hold`].
+//! 5. Queue the received bits; the control tick hands them to
+//!    [`IoExtension::complete`](super::IoExtension::complete) after its
+//!    chain batch. On a DMA or bus error stop the engine, raise CS and queue
+//!    a failure ([`IoExtension::fail`](super::IoExtension::fail)).
+//!
+//! The driver runs at the lowest priority (a software task that gets the
+//! plan from the control tick and starts it, the DMA interrupt that ends
+//! it) and never locks the extension's state, so it never holds up the
+//! control tick; being preempted can only delay a start or lengthen the SPI
+//! engine's gaps between frames — never shorten a clock period, which the
+//! peripheral or the timer makes.
+//!
+//! [`Action::Disable`]: raise CS and stop driving the port (SCK, MOSI back
+//! to inputs): the extension was switched off.
+//!
+//! The edges of the wire, half-period by half-period, are given by
+//! [`wire`](super::wire::wire); the host tests check them against simulated
+//! 74HC165/74HC595 chips.
+
+use super::clock::{ClockPlan, Engine};
+use super::config::{SpiMode, WireBits};
+
+/// What the firmware must do after a control tick.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum Action {
+    /// Run this transfer on the extension port.
+    Transfer(TransferPlan),
+    /// The extension was switched off: raise CS (if low) and release the port.
+    Disable,
+}
+
+/// One transfer, ready to run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct TransferPlan {
+    /// Bits to clock, 1..=256: exactly this many clock periods.
+    pub bits: u16,
+    pub mode: SpiMode,
+    pub clock: ClockPlan,
+    /// CS is still low from the previous transfer (it held CS): do not
+    /// touch it at the start.
+    pub cs_low_before: bool,
+    /// Leave CS low at the end.
+    pub cs_hold: bool,
+    /// The bits to send, in wire order; bits from `bits` on are 0.
+    pub tx: WireBits,
+}
+
+/// SPI2 settings of a plan on the SPI engine.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct SpiSetup {
+    /// CR1.BR: prescaler 2^(br + 1).
+    pub br: u8,
+    pub mode: SpiMode,
+    /// 8-bit frames to move (bits / 8).
+    pub frames: u16,
+}
+
+/// TIM1 settings of a plan on the timer engine (see the module doc).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct TimerSetup {
+    pub psc: u16,
+    /// Period − 1.
+    pub arr: u16,
+    /// Bits − 1: the timer makes RCR + 1 clock periods, then stops.
+    pub rcr: u8,
+    /// CCR1: the leading SCK edge of each period (the first phase is the
+    /// idle level, `ccr_sck` ticks long).
+    pub ccr_sck: u16,
+    /// CCR3: when MOSI takes its next bit (1 tick after the trailing edge
+    /// for CPHA = 0, at the leading edge for CPHA = 1).
+    pub ccr_mosi: u16,
+    /// CCR2: when MISO is sampled — the middle of the half-period that ends
+    /// at the sampling edge, where the slave's output is stable.
+    pub ccr_sample: u16,
+    /// MOSI level to set before the timer starts (bit 0).
+    pub first_mosi: bool,
+}
+
+impl TransferPlan {
+    /// Wire bit `i` of the data to send.
+    pub fn mosi(&self, i: usize) -> bool {
+        self.tx.get(i)
+    }
+
+    /// Byte `j` for the SPI engine's 8-bit frames.
+    pub fn tx_byte(&self, j: usize) -> u8 {
+        self.tx.byte(j)
+    }
+
+    /// Half a clock period, ns, rounded up: the least time from CS falling
+    /// to the first clock edge, and from the last clock edge to CS rising.
+    pub fn half_period_ns(&self) -> u64 {
+        self.clock.period.nanos_ceil().div_ceil(2)
+    }
+
+    /// Time CS is low for this transfer at the nominal clock ((bits + ½)
+    /// periods: half a period before the first edge, `bits` periods, and the
+    /// last half-period before CS rises), ns rounded up. The real transfer
+    /// takes longer by the driver's start and end latency.
+    pub fn nominal_ns(&self) -> u64 {
+        let half_periods = u64::from(self.bits).saturating_mul(2).saturating_add(1);
+        let p = self.clock.period;
+        u64::from(p.ticks)
+            .saturating_mul(half_periods)
+            .saturating_mul(1_000_000_000)
+            .div_ceil(u64::from(p.hz).saturating_mul(2).max(1))
+    }
+
+    /// The SPI2 settings, for a plan on the SPI engine.
+    pub fn spi(&self) -> Option<SpiSetup> {
+        match self.clock.engine {
+            Engine::Spi { br } => Some(SpiSetup {
+                br,
+                mode: self.mode,
+                frames: self.bits / 8,
+            }),
+            Engine::Timer { .. } => None,
+        }
+    }
+
+    /// The TIM1 settings, for a plan on the timer engine.
+    pub fn timer(&self) -> Option<TimerSetup> {
+        let Engine::Timer { psc, period } = self.clock.engine else {
+            return None;
+        };
+        // period is 4..=65 536 (clock::timer_settings), so every value fits.
+        let period = period.clamp(4, 65_536);
+        let first = period / 2;
+        let second = period.saturating_sub(first);
+        let (ccr_mosi, ccr_sample) = if self.mode.cpha {
+            (first, first.saturating_add(second / 2))
+        } else {
+            (1, first / 2)
+        };
+        let fit = |v: u32| u16::try_from(v).unwrap_or(u16::MAX);
+        Some(TimerSetup {
+            psc,
+            arr: fit(period.saturating_sub(1)),
+            rcr: u8::try_from(self.bits.saturating_sub(1)).unwrap_or(u8::MAX),
+            ccr_sck: fit(first),
+            ccr_mosi: fit(ccr_mosi),
+            ccr_sample: fit(ccr_sample),
+            first_mosi: self.mosi(0),
+        })
+    }
+
+    /// The timer engine's MOSI DMA table: one GPIO BSRR word per bit (bit
+    /// `k` sets or resets `pin`, 0..=15), written at CCR3 of period `k`.
+    /// Fills `out` and returns the number of words (`bits`, or fewer if
+    /// `out` is shorter).
+    pub fn mosi_bsrr(&self, pin: u8, out: &mut [u32]) -> usize {
+        let n = usize::from(self.bits).min(out.len());
+        let (set, reset) = (bsrr(pin, true), bsrr(pin, false));
+        let out = out.get_mut(..n).unwrap_or(&mut []);
+        for (chunk, w) in out.chunks_mut(16).zip(self.tx.words()) {
+            let mut w = *w;
+            for slot in chunk {
+                *slot = if w & 0x8000 != 0 { set } else { reset };
+                w = w.wrapping_shl(1);
+            }
+        }
+        n
+    }
+}
+
+/// The GPIO BSRR word that drives `pin` (0..=15, taken modulo 16) to `level`.
+pub const fn bsrr(pin: u8, level: bool) -> u32 {
+    let bit = 1u32 << (pin % 16);
+    if level {
+        bit
+    } else {
+        bit << 16
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    #![allow(
+        clippy::indexing_slicing,
+        clippy::arithmetic_side_effects,
+        clippy::unwrap_used,
+        clippy::panic
+    )]
+    use super::super::clock::{clock_plan, Clocks};
+    use super::*;
+
+    fn plan(bits: u16, mode: SpiMode, n: u8) -> TransferPlan {
+        let mut tx = WireBits::ZERO;
+        for i in (0..usize::from(bits)).step_by(3) {
+            tx.set(i, true);
+        }
+        TransferPlan {
+            bits,
+            mode,
+            clock: clock_plan(n, bits, Clocks::BOARD),
+            cs_low_before: false,
+            cs_hold: false,
+            tx,
+        }
+    }
+
+    #[test]
+    fn spi_plans_move_bits_over_8_frames() {
+        let p = plan(256, SpiMode::MODE3, 0);
+        assert_eq!(
+            p.spi(),
+            Some(SpiSetup {
+                br: 0,
+                mode: SpiMode::MODE3,
+                frames: 32
+            })
+        );
+        assert_eq!(p.timer(), None);
+        assert_eq!(p.tx_byte(0), 0b1001_0010);
+    }
+
+    #[test]
+    fn timer_plans_make_exactly_bits_periods_with_compares_inside_the_period() {
+        for bits in [1u16, 7, 9, 33, 255] {
+            for mode in SpiMode::ALL {
+                let p = plan(bits, mode, 50);
+                assert_eq!(p.spi(), None);
+                let t = p.timer().unwrap();
+                assert_eq!(u16::from(t.rcr) + 1, bits);
+                assert_eq!((t.psc, t.arr, t.ccr_sck), (0, 843, 422));
+                if mode.cpha {
+                    // MOSI at the leading edge, sample in the middle of the active phase.
+                    assert_eq!((t.ccr_mosi, t.ccr_sample), (422, 633));
+                } else {
+                    // MOSI just after the trailing edge, sample mid idle phase.
+                    assert_eq!((t.ccr_mosi, t.ccr_sample), (1, 211));
+                }
+                assert!(t.first_mosi);
+            }
+        }
+    }
+
+    #[test]
+    fn bsrr_table_sets_and_resets_the_pin_bit_by_bit() {
+        let p = plan(9, SpiMode::MODE0, 0);
+        let mut out = [0u32; 256];
+        assert_eq!(p.mosi_bsrr(15, &mut out), 9);
+        assert_eq!(out[0], 1 << 15);
+        assert_eq!(out[1], 1 << 31);
+        assert_eq!(out[3], 1 << 15);
+        assert_eq!(out[9], 0);
+        let mut short = [0u32; 4];
+        assert_eq!(p.mosi_bsrr(15, &mut short), 4);
+    }
+
+    #[test]
+    fn half_period_and_nominal_duration() {
+        // 256 bits at 47.619 ns: (512 + 1) half-periods = 12 214.3 ns.
+        let p = plan(256, SpiMode::MODE0, 0);
+        assert_eq!(p.half_period_ns(), 24);
+        assert_eq!(p.nominal_ns(), 12_215);
+        // 256 bits at N = 255 (25 523.8 ns): 6.546 ms.
+        let p = plan(256, SpiMode::MODE0, 255);
+        assert_eq!(p.nominal_ns(), 6_546_858);
+        assert_eq!(p.half_period_ns(), 12_762);
+    }
+}

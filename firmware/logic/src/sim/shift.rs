@@ -1,0 +1,400 @@
+//! A chain of 74HC165 (parallel in, serial out: buttons, switches) and
+//! 74HC595 (serial in, latched parallel out: lamps) on one SPI port, as the
+//! I/O extension drives it. It consumes the half-period sequence of
+//! [`crate::ioext::wire()`] and returns what a real chain would put on
+//! MISO.
+//!
+//! # Wiring assumed
+//!
+//! ```text
+//!  SCK ──► CLK of every '165, SRCLK of every '595
+//!  MOSI ─► SER of '595 #0;  QH' of '595 #k ─► SER of '595 #k+1
+//!  MISO ◄─ QH of '165 #0;   SER of '165 #k ◄─ QH of '165 #k+1;  SER of the last '165 ◄─ GND
+//!  CS ───► RCLK of every '595
+//!  CS ─►[inverter]─► SH/LD of every '165
+//!  '165 CLK INH ─ GND   '595 SRCLR ─ VCC   '595 OE ─ GND
+//! ```
+//!
+//! The inverter is needed: SH/LD low *loads* the '165 (asynchronously, as
+//! long as it is low, and the clock is ignored meanwhile), and the
+//! extension's CS is low *during* the transfer. Wired directly, a '165
+//! would reload all the time CS is low and MISO would read input H for every
+//! bit. With the inverter the '165s follow their inputs while CS is high and
+//! freeze them when CS falls.
+//!
+//! # What the parts do (datasheet behaviour)
+//!
+//! * **74HC165** — SH/LD low: the eight stages take the parallel inputs A..H
+//!   (transparent while low); QH shows stage H, so bit H is on MISO right
+//!   after the load, before the first clock. SH/LD high and CLK INH low: on
+//!   every CLK rising edge the stages shift towards H (H ← G … B ← A, A ←
+//!   SER). Falling edges do nothing.
+//! * **74HC595** — on every SRCLK rising edge the shift register shifts
+//!   towards QH (QA ← SER, QB ← QA …, QH' = QH before the edge); on an RCLK
+//!   rising edge the output latches take the shift register. Falling edges
+//!   do nothing; SRCLK is not gated by CS.
+//! * Every part samples its data input with the levels *before* the edge
+//!   (the wire reference's convention); MISO changes only after an edge.
+//!
+//! Numbering: receive bit `i` of a transfer is input `H − i % 8` (pin index
+//! `7 − i % 8`, A = 0) of '165 #`i / 8`; after an n-bit transfer transmit bit
+//! `i` sits in '595 stage `n − 1 − i` (stage `8c + x` = output Q(A + x) of
+//! '595 #c). With as many bits as stages, transmit bit 0 is QH of the last
+//! '595 and bit n − 1 is QA of '595 #0.
+//!
+//! # What each SPI mode gives (the parts are mode-0/mode-3 devices)
+//!
+//! * Modes 0 and 3: exact in both directions.
+//! * Mode 2 (CPOL 1, CPHA 0): exact too, but the '595 then shifts on the
+//!   edge at which the master changes MOSI, so on real hardware it relies on
+//!   MOSI changing after the '595's hold time (the timer engine changes it a
+//!   DMA latency later; on the SPI engine it is a race).
+//! * Mode 1 (CPOL 0, CPHA 1): everything is one bit late. The '165 shifts on
+//!   the leading edge before the master samples, so the master receives
+//!   inputs 1..n−1 and then the next bit (SER, 0 past the chain) — input 0 is
+//!   lost. The '595 shifts on the leading edge, where MOSI still holds the
+//!   previous bit, so it receives b0, b0, b1, …, b(n−2).
+
+use crate::ioext::{wire, HalfPeriod, TransferPlan, WireBits};
+
+/// Most chips of each kind (256 bits).
+pub const MAX_CHIPS: usize = 32;
+
+/// `m` 74HC165s and `p` 74HC595s wired as the module doc shows.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ShiftChain {
+    n165: usize,
+    n595: usize,
+    /// Parallel inputs of each '165: bit x = input A + x.
+    inputs: [u8; MAX_CHIPS],
+    /// '165 stages: bit x = stage A + x (QH = bit 7).
+    sr165: [u8; MAX_CHIPS],
+    /// '595 shift register: bit x = stage QA + x.
+    sr595: [u8; MAX_CHIPS],
+    /// '595 output latches: bit x = output QA + x.
+    out595: [u8; MAX_CHIPS],
+    /// Level on the last '165's SER.
+    tail: bool,
+    /// Line levels now (CS high, SCK low, MOSI low at power-up).
+    lines: HalfPeriod,
+    rising_edges: u64,
+    latches: u64,
+}
+
+impl ShiftChain {
+    /// `n165` and `n595` chips (each clamped to 0..=[`MAX_CHIPS`]), all
+    /// inputs low, all registers and outputs 0, lines idle (CS high, SCK low).
+    pub fn new(n165: usize, n595: usize) -> ShiftChain {
+        ShiftChain {
+            n165: n165.min(MAX_CHIPS),
+            n595: n595.min(MAX_CHIPS),
+            inputs: [0; MAX_CHIPS],
+            sr165: [0; MAX_CHIPS],
+            sr595: [0; MAX_CHIPS],
+            out595: [0; MAX_CHIPS],
+            tail: false,
+            lines: HalfPeriod {
+                cs: true,
+                sck: false,
+                mosi: false,
+                sample: false,
+            },
+            rising_edges: 0,
+            latches: 0,
+        }
+    }
+
+    /// Set parallel input `pin` (0 = A … 7 = H) of '165 #`chip`.
+    pub fn set_input(&mut self, chip: usize, pin: usize, level: bool) {
+        if chip < self.n165 {
+            if let Some(b) = self.inputs.get_mut(chip) {
+                let m = 1u8 << (pin % 8);
+                if level {
+                    *b |= m;
+                } else {
+                    *b &= !m;
+                }
+            }
+        }
+        if self.lines.cs {
+            self.load();
+        }
+    }
+
+    /// Set the input that receive bit `i` reads ('165 #`i / 8`, input
+    /// `H − i % 8`).
+    pub fn set_rx_bit(&mut self, i: usize, level: bool) {
+        self.set_input(i / 8, 7 - i % 8, level);
+    }
+
+    /// Output `pin` (0 = QA … 7 = QH) of '595 #`chip` (false past the chain).
+    pub fn output(&self, chip: usize, pin: usize) -> bool {
+        chip < self.n595
+            && self
+                .out595
+                .get(chip)
+                .is_some_and(|b| b & (1 << (pin % 8)) != 0)
+    }
+
+    /// Output stage `s` (= 8·chip + pin) of the '595 chain.
+    pub fn stage(&self, s: usize) -> bool {
+        self.output(s / 8, s % 8)
+    }
+
+    /// The latched output that shows transmit bit `i` after an n-bit
+    /// transfer: stage n − 1 − i (false if it fell off the chain).
+    pub fn tx_bit_output(&self, n: usize, i: usize) -> bool {
+        n.checked_sub(1)
+            .and_then(|l| l.checked_sub(i))
+            .is_some_and(|s| self.stage(s))
+    }
+
+    /// The level on MISO now.
+    pub fn miso(&self) -> bool {
+        if self.n165 == 0 {
+            return self.tail;
+        }
+        self.sr165[0] & 0x80 != 0
+    }
+
+    /// SCK rising edges seen so far (with CS low or high).
+    pub fn rising_edges(&self) -> u64 {
+        self.rising_edges
+    }
+
+    /// RCLK rising edges (output latches) so far.
+    pub fn latches(&self) -> u64 {
+        self.latches
+    }
+
+    fn load(&mut self) {
+        self.sr165 = self.inputs;
+    }
+
+    /// Move the lines to `h`'s levels (CS first, then SCK, each edge seeing
+    /// the levels before it), then hold them for the half-period. Returns
+    /// the MISO level the master samples at its end, if it samples.
+    pub fn step(&mut self, h: HalfPeriod) -> Option<bool> {
+        let before = self.lines;
+        // CS rising: RCLK rises (latch) and SH/LD falls (load, then follow
+        // the inputs). CS falling: SH/LD rises, the '165s keep the snapshot.
+        if before.cs != h.cs && h.cs {
+            self.out595 = self.sr595;
+            self.latches += 1;
+            self.load();
+        }
+        if before.sck != h.sck && h.sck {
+            self.rising_edges += 1;
+            self.clock(h.cs, before.mosi);
+        }
+        self.lines = h;
+        h.sample.then(|| self.miso())
+    }
+
+    /// One rising edge on SCK: '165s shift when SH/LD is high (CS low),
+    /// '595s always.
+    fn clock(&mut self, cs: bool, mosi: bool) {
+        if !cs {
+            let n = self.n165;
+            for k in 0..n {
+                let ser = if k + 1 < n {
+                    self.sr165[k + 1] & 0x80 != 0
+                } else {
+                    self.tail
+                };
+                self.sr165[k] = (self.sr165[k] << 1) | u8::from(ser);
+            }
+        }
+        let mut ser = mosi;
+        for k in 0..self.n595 {
+            let out = self.sr595[k] & 0x80 != 0;
+            self.sr595[k] = (self.sr595[k] << 1) | u8::from(ser);
+            ser = out;
+        }
+    }
+
+    /// Run a whole transfer through the chain and return the bits the
+    /// master receives.
+    pub fn transfer(&mut self, plan: &TransferPlan) -> WireBits {
+        let mut rx = WireBits::ZERO;
+        let mut k = 0;
+        for h in wire(plan) {
+            if let Some(bit) = self.step(h) {
+                rx.set(k, bit);
+                k += 1;
+            }
+        }
+        rx
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ioext::{clock_plan, Clocks, SpiMode};
+
+    fn plan(bits: u16, mode: SpiMode, tx: WireBits) -> TransferPlan {
+        TransferPlan {
+            bits,
+            mode,
+            clock: clock_plan(0, bits, Clocks::BOARD),
+            cs_low_before: false,
+            cs_hold: false,
+            tx: tx.truncated(bits),
+        }
+    }
+
+    /// A pattern that tells bit positions apart.
+    fn pattern(seed: u32) -> WireBits {
+        let mut b = WireBits::ZERO;
+        let mut x = seed | 1;
+        for i in 0..256 {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            b.set(i, x & 1 != 0);
+        }
+        b
+    }
+
+    /// A chain with `chips` of each kind and the inputs set to `inputs` (in
+    /// receive-bit order).
+    fn chain(chips: usize, inputs: &WireBits) -> ShiftChain {
+        let mut c = ShiftChain::new(chips, chips);
+        for i in 0..chips * 8 {
+            c.set_rx_bit(i, inputs.get(i));
+        }
+        c
+    }
+
+    #[test]
+    fn the_165_shows_input_h_before_the_first_clock() {
+        let mut c = ShiftChain::new(1, 0);
+        c.set_input(0, 7, true);
+        assert!(c.miso());
+        c.set_input(0, 7, false);
+        assert!(!c.miso(), "transparent while SH/LD is low");
+    }
+
+    #[test]
+    fn mode_0_and_3_are_exact_in_both_directions() {
+        for mode in [SpiMode::MODE0, SpiMode::MODE3] {
+            let (ins, tx) = (pattern(1), pattern(2));
+            let mut c = chain(2, &ins);
+            let rx = c.transfer(&plan(16, mode, tx));
+            for i in 0..16 {
+                assert_eq!(rx.get(i), ins.get(i), "{mode:?} rx {i}");
+                assert_eq!(c.tx_bit_output(16, i), tx.get(i), "{mode:?} tx {i}");
+            }
+            assert_eq!(c.latches(), 1);
+        }
+    }
+
+    #[test]
+    fn mode_2_is_exact_by_the_edge_convention() {
+        let (ins, tx) = (pattern(3), pattern(4));
+        let mut c = chain(2, &ins);
+        let rx = c.transfer(&plan(16, SpiMode::MODE2, tx));
+        for i in 0..16 {
+            assert_eq!(rx.get(i), ins.get(i), "rx {i}");
+            assert_eq!(c.tx_bit_output(16, i), tx.get(i), "tx {i}");
+        }
+    }
+
+    #[test]
+    fn mode_1_loses_input_0_and_shifts_the_outputs_by_one() {
+        let (ins, tx) = (pattern(5), pattern(6));
+        let mut c = chain(2, &ins);
+        let rx = c.transfer(&plan(16, SpiMode::MODE1, tx));
+        for i in 0..15 {
+            assert_eq!(rx.get(i), ins.get(i + 1), "rx {i}");
+        }
+        // The 16th sample is the SER tail (GND).
+        assert!(!rx.get(15));
+        // '595: b0, b0, b1, …, b14.
+        assert_eq!(c.tx_bit_output(16, 0), tx.get(0));
+        for i in 1..16 {
+            assert_eq!(c.tx_bit_output(16, i), tx.get(i - 1), "tx {i}");
+        }
+    }
+
+    #[test]
+    fn every_bit_count_reads_the_first_n_inputs_and_shifts_n_outputs() {
+        for n in [1u16, 7, 8, 9, 31, 32, 33, 255, 256] {
+            for mode in [SpiMode::MODE0, SpiMode::MODE3] {
+                let (ins, tx) = (pattern(u32::from(n)), pattern(u32::from(n) + 1000));
+                let mut c = chain(32, &ins);
+                let rx = c.transfer(&plan(n, mode, tx));
+                let n = usize::from(n);
+                for i in 0..256 {
+                    // Received: the first n inputs, nothing after.
+                    assert_eq!(rx.get(i), i < n && ins.get(i), "n {n} rx {i}");
+                    // Latched: tx bit i at stage n − 1 − i; stages ≥ n still 0.
+                    if i < n {
+                        assert_eq!(c.tx_bit_output(n, i), tx.get(i), "n {n} tx {i}");
+                    } else {
+                        assert!(!c.stage(i), "n {n} stage {i}");
+                    }
+                }
+                // Mode 3: SCK goes from the power-up low to its idle high
+                // once, with CS high (one more rising edge, no '165 shift).
+                assert_eq!(c.rising_edges(), n as u64 + u64::from(mode.cpol));
+            }
+        }
+    }
+
+    #[test]
+    fn cs_held_low_makes_two_transfers_one() {
+        let (ins, tx) = (pattern(7), pattern(8));
+        let mut c = chain(2, &ins);
+        let mut first = plan(8, SpiMode::MODE0, tx);
+        first.cs_hold = true;
+        let rx1 = c.transfer(&first);
+        assert_eq!(c.latches(), 0, "no latch while CS stays low");
+        // Second half: bits 8..16 of the same 16-bit string.
+        let mut rest = WireBits::ZERO;
+        for i in 0..8 {
+            rest.set(i, tx.get(i + 8));
+        }
+        let mut second = plan(8, SpiMode::MODE0, rest);
+        second.cs_low_before = true;
+        let rx2 = c.transfer(&second);
+        for i in 0..8 {
+            assert_eq!(rx1.get(i), ins.get(i));
+            assert_eq!(rx2.get(i), ins.get(i + 8), "the '165s were not reloaded");
+        }
+        for i in 0..16 {
+            assert_eq!(c.tx_bit_output(16, i), tx.get(i));
+        }
+        assert_eq!(c.latches(), 1);
+    }
+
+    #[test]
+    fn inputs_changed_during_a_transfer_do_not_reach_it() {
+        let mut c = ShiftChain::new(1, 0);
+        let p = plan(8, SpiMode::MODE0, WireBits::ZERO);
+        let mut samples = vec![];
+        for (k, h) in wire(&p).enumerate() {
+            samples.extend(c.step(h));
+            if k == 2 {
+                c.set_input(0, 3, true); // CS is low: the snapshot stands
+            }
+        }
+        assert_eq!(samples, [false; 8]);
+        // Once CS is high again the '165 follows its inputs.
+        c.set_input(0, 7, true);
+        assert!(c.miso());
+    }
+
+    #[test]
+    fn a_cpol_change_with_cs_high_shifts_the_595_but_not_the_165() {
+        let mut c = ShiftChain::new(1, 1);
+        c.set_input(0, 7, true);
+        // Idle low, then a mode-2 transfer starts with SCK high: one rising
+        // edge with CS high.
+        let p = plan(8, SpiMode::MODE2, WireBits::ZERO);
+        let _ = c.transfer(&p);
+        assert_eq!(c.rising_edges(), 9);
+        assert!(c.miso(), "the '165 reloaded, not shifted");
+    }
+}
