@@ -108,6 +108,7 @@ fn pin_statuses_0x12_report_bootloader_enable_buttons_and_end_switch() {
         Inputs {
             bin1: true,
             bin2: false,
+            ..Inputs::default()
         },
     );
     b.run(4);
@@ -698,6 +699,7 @@ fn binx_buttons_move_by_bin1_and_bin2_steps() {
         Inputs {
             bin1: true,
             bin2: false,
+            ..Inputs::default()
         },
     );
     b.settle(30_000);
@@ -707,6 +709,7 @@ fn binx_buttons_move_by_bin1_and_bin2_steps() {
         Inputs {
             bin1: false,
             bin2: false,
+            ..Inputs::default()
         },
     );
     b.bridge.on_inputs(
@@ -714,6 +717,7 @@ fn binx_buttons_move_by_bin1_and_bin2_steps() {
         Inputs {
             bin1: false,
             bin2: true,
+            ..Inputs::default()
         },
     );
     b.settle(30_000);
@@ -724,6 +728,7 @@ fn binx_buttons_move_by_bin1_and_bin2_steps() {
         Inputs {
             bin1: false,
             bin2: true,
+            ..Inputs::default()
         },
     );
     b.run(500);
@@ -738,6 +743,7 @@ fn binx_buttons_do_nothing_in_position_mode() {
         Inputs {
             bin1: true,
             bin2: false,
+            ..Inputs::default()
         },
     );
     b.run(500);

@@ -6,7 +6,7 @@
 //! | block | addresses | what | scope |
 //! |---|---|---|---|
 //! | chip | 0x01nn | powerSTEP01 register `nn` (0x01..=0x1B), right-aligned; 22/20-bit ones (ABS_POS, MARK, SPEED) in two registers, high word first | axis |
-//! | I/O extension | 0x02nn | the Copley-style SPI extension | bridge |
+//! | I/O extension | 0x02nn | the Copley-style SPI extension (`crate::ioext::registers`) | bridge |
 //! | diagnostics | 0x03nn | counters, timing, reset cause, versions ([`diag`]); a write of any value to 0x0300 clears the counters | bridge |
 //! | homing | 0x04nn | start/abort, state, result, parameters ([`homing`]) | axis |
 //! | watchdog | 0x05nn | communication watchdog per bus ([`watchdog`]) | bridge |
@@ -159,6 +159,15 @@ pub mod axis {
     pub const LEN: usize = 0x0A;
 }
 
+fn io_error(e: crate::ioext::IoError) -> ExtError {
+    use crate::ioext::IoError;
+    match e {
+        IoError::IllegalAddress => ExtError::IllegalAddress,
+        IoError::IllegalValue => ExtError::IllegalValue,
+        IoError::Unsupported | IoError::Busy | IoError::Disabled => ExtError::Refused,
+    }
+}
+
 fn put32(regs: &mut [u16], at: u8, v: u32) {
     let at = usize::from(at);
     if let Some(s) = regs.get_mut(at..at + 2) {
@@ -189,6 +198,7 @@ impl<B: ChainBus> Bridge<B> {
         let [blk, offset] = address.to_be_bytes();
         match blk {
             block::CHIP => self.chip_read(k, offset, out),
+            block::IOEXT => self.io.read(address, out).map_err(io_error),
             block::DIAG => copy_out(&self.diag_block(), offset, out),
             block::HOMING => copy_out(&self.homing_block(k)?, offset, out),
             block::WATCHDOG => copy_out(&self.watchdog_block(), offset, out),
@@ -202,6 +212,10 @@ impl<B: ChainBus> Bridge<B> {
         let [blk, offset] = address.to_be_bytes();
         let r = match blk {
             block::CHIP => self.chip_write(k, offset, data),
+            block::IOEXT if self.saving || self.run_mode == super::RunMode::Boot => {
+                Err(ExtError::Refused)
+            }
+            block::IOEXT => self.io.write(address, data).map_err(io_error),
             block::DIAG if offset == diag::MODBUS_FRAMES => {
                 self.clear_diagnostics();
                 Ok(())

@@ -25,6 +25,7 @@
 
 use heapless::Vec;
 
+use crate::ioext::{Action as IoAction, Clocks as IoClocks, IoExtension};
 use crate::motion::{Axis, AxisConfig, AxisGroup};
 use crate::postep60::analog::{self, AnalogSample};
 use crate::postep60::settings::{Serial, Watchdog, WatchdogAction, IMAGE_LEN, WATCHED_BUSES};
@@ -197,6 +198,7 @@ mod tests {
 
 pub mod ext;
 mod i2c;
+mod io;
 mod modbus;
 mod usb;
 
@@ -275,6 +277,12 @@ pub struct Bridge<B: ChainBus> {
     resets_base: [u32; MAX_DEVICES],
     /// 0 no save yet, 1 the last save succeeded, 2 it failed.
     last_save: u16,
+    /// The Copley-style SPI I/O extension.
+    io: IoExtension,
+    /// Input levels the board's own pins last reported, per axis.
+    board_inputs: [Inputs; MAX_DEVICES],
+    /// What the extension's driver must do next (taken by the firmware).
+    io_action: Option<IoAction>,
     chain_error: Option<ChainError<B::Error>>,
     /// Control ticks in a row whose chain batch failed.
     failed_ticks: u32,
@@ -364,6 +372,9 @@ impl<B: ChainBus> Bridge<B> {
             modbus_base: ModbusStats::default(),
             resets_base: [0; MAX_DEVICES],
             last_save: 0,
+            io: IoExtension::new(settings.io, IoClocks::BOARD),
+            io_action: None,
+            board_inputs: [Inputs::default(); MAX_DEVICES],
             chain_error,
             failed_ticks: 0,
             source,
@@ -507,6 +518,7 @@ impl<B: ChainBus> Bridge<B> {
             base_address: self.base_address,
             serial: self.serial,
             watchdog: self.watchdog,
+            io: self.io.settings(),
             ..Settings::FACTORY
         };
         for (slot, d) in s.axes.iter_mut().zip(self.devices.iter()) {
@@ -532,26 +544,28 @@ impl<B: ChainBus> Bridge<B> {
         self.temperature = analog::temperature_units(sample, self.board.analog);
     }
 
-    /// New BIN button levels of one axis (ignored while settings are saved).
+    /// New input levels of one axis from the board's own pins (inputs the
+    /// I/O extension's mapping wires come from the extension instead).
+    /// Applied at once, or at the first tick after a save.
     pub fn on_inputs(&mut self, k: usize, inputs: Inputs) {
-        if self.saving {
-            return;
+        if let Some(slot) = self.board_inputs.get_mut(k) {
+            *slot = inputs;
         }
-        if let (Some(d), Some(a)) = (self.devices.get_mut(k), self.group.axis_mut(k)) {
-            d.set_inputs(inputs, a);
-        }
+        self.apply_inputs();
     }
 
     /// One control tick at `now_ms`.
     pub fn tick(&mut self, now_ms: u64) {
         self.now_ms = now_ms;
         self.watch_buses();
+        self.apply_inputs();
         for (k, d) in self.devices.iter_mut().enumerate() {
             if let Some(a) = self.group.axis_mut(k) {
                 d.tick(now_ms, a, &self.board, self.temperature);
             }
         }
         if self.devices.is_empty() {
+            self.io_outputs();
             return;
         }
         if self.group.tick(&mut self.chain).is_err() {
@@ -567,6 +581,7 @@ impl<B: ChainBus> Bridge<B> {
             .fold(0u32, |n, (a, b)| {
                 n.saturating_add(a.chip_resets().wrapping_sub(*b))
             });
+        self.io_outputs();
     }
 
     /// The communication watchdog: a bus silent for longer than its

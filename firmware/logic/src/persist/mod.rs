@@ -149,7 +149,7 @@ use crc::{Crc, CRC_32_ISO_HDLC};
 use embedded_storage::nor_flash::NorFlash;
 
 /// Largest settings image the store accepts.
-pub const MAX_IMAGE: usize = 1024;
+pub const MAX_IMAGE: usize = 1536;
 /// Record format version written by this store, the only one it loads.
 pub const FORMAT_VERSION: u16 = 1;
 /// Bytes of a record around its payload: 16 header, 4 CRC, 4 commit word.

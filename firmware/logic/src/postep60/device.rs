@@ -254,6 +254,13 @@ pub struct Inputs {
     /// BIN1 / BIN2 buttons pressed (buttons to GND).
     pub bin1: bool,
     pub bin2: bool,
+    /// The end switch's contact is closed, where it is wired to the I/O
+    /// extension (`None`: it is on the chip's SW input).
+    pub end_switch: Option<bool>,
+    /// The auto-run run/stop switch is on (`None`: there is none, auto run
+    /// runs from power-up; a wired switch whose level is not known yet
+    /// reads `Some(false)`).
+    pub run: Option<bool>,
 }
 
 /// One PoStep60.
@@ -370,7 +377,8 @@ impl Device {
             self.watch_end_switch(axis);
             if !self.auto_started {
                 self.auto_started = true;
-                if self.settings.mode == DriverMode::AutoRun && self.blocked().is_ok() {
+                let run = self.inputs.run != Some(false);
+                if self.settings.mode == DriverMode::AutoRun && self.blocked().is_ok() && run {
                     // Power-up: max speed applies, not the requested speed (7.5.3).
                     self.run_auto(axis, self.settings.max_speed);
                 }
@@ -391,10 +399,25 @@ impl Device {
     }
 
     /// New BIN button levels (mode 5: a press moves).
+    /// The input levels last handed over.
+    pub fn inputs(&self) -> Inputs {
+        self.inputs
+    }
+
     pub fn set_inputs(&mut self, inputs: Inputs, axis: &mut Axis) {
         let pressed1 = inputs.bin1 && !self.inputs.bin1;
         let pressed2 = inputs.bin2 && !self.inputs.bin2;
+        let run_on = inputs.run == Some(true) && self.inputs.run != Some(true);
+        let run_off = inputs.run == Some(false) && self.inputs.run == Some(true);
         self.inputs = inputs;
+        if self.settings.mode == DriverMode::AutoRun && self.auto_started {
+            // Manual 7.5.3: the run/stop switch turns the motion on and off.
+            if run_on && self.blocked().is_ok() {
+                self.run_auto(axis, self.settings.requested_speed.max(1));
+            } else if run_off {
+                axis.soft_stop();
+            }
+        }
         if self.settings.mode != DriverMode::BinButtons || self.blocked().is_err() {
             return;
         }
@@ -439,8 +462,16 @@ impl Device {
         }
     }
 
+    /// The end switch's level: from the I/O extension where it is wired
+    /// there, else the chip's SW input.
+    fn end_switch_closed(&self, axis: &Axis) -> bool {
+        self.inputs
+            .end_switch
+            .unwrap_or(axis.status().switch_closed())
+    }
+
     fn watch_end_switch(&mut self, axis: &mut Axis) {
-        let closed = axis.status().switch_closed();
+        let closed = self.end_switch_closed(axis);
         let changed = self.switch_closed.is_some_and(|prev| prev != closed);
         self.switch_closed = Some(closed);
         // Homing runs into the switch on purpose.
@@ -824,7 +855,7 @@ impl Device {
                 if !self.inputs.bin2 {
                     p |= 0x20;
                 }
-                if !axis.status().switch_closed() {
+                if !self.end_switch_closed(axis) {
                     p |= 0x40;
                 }
                 Value::U8(p)

@@ -8,6 +8,7 @@
 
 use super::current::Current;
 use super::drv8711::{Drv8711Regs, REGISTERS as DRV_REGISTERS};
+use crate::ioext::{IoSettings, IMAGE_LEN as IO_IMAGE_LEN};
 use crate::powerstep::chain::MAX_DEVICES;
 
 /// PoStep60 driver modes (manual 8.3.11).
@@ -412,13 +413,19 @@ pub struct Settings {
     pub axes: [AxisSettings; MAX_DEVICES],
     /// Communication watchdog per bus: Modbus, I2C, USB (extension).
     pub watchdog: [Watchdog; WATCHED_BUSES],
+    /// The SPI I/O extension: enable, configuration, transmit data, mapping.
+    pub io: IoSettings,
 }
 
 /// Image format written by this firmware. Format 1 (without the DRV8711
 /// image, 16-bit requested speed) still loads.
 pub const IMAGE_FORMAT: u8 = 2;
-/// Bytes of a settings image: header, the watchdogs, the axes.
-pub const IMAGE_LEN: usize = 3 + 3 * WATCHED_BUSES + MAX_DEVICES * AxisSettings::RECORD;
+/// Bytes of a settings image: header, the watchdogs, the axes, the I/O
+/// extension.
+pub const IMAGE_LEN: usize =
+    3 + 3 * WATCHED_BUSES + MAX_DEVICES * AxisSettings::RECORD + IO_IMAGE_LEN;
+/// Where the I/O extension's image starts.
+const IO_AT: usize = IMAGE_LEN - IO_IMAGE_LEN;
 /// Bytes of a format-1 image.
 pub const IMAGE_LEN_V1: usize = 3 + MAX_DEVICES * AxisSettings::RECORD_V1;
 const _: () = assert!(
@@ -442,6 +449,7 @@ impl Settings {
         serial: Serial::DEFAULT,
         axes: [AxisSettings::FACTORY; MAX_DEVICES],
         watchdog: [Watchdog::OFF; WATCHED_BUSES],
+        io: IoSettings::FACTORY,
     };
 
     pub fn to_image(&self, out: &mut [u8; IMAGE_LEN]) {
@@ -456,10 +464,13 @@ impl Settings {
         for (axis, chunk) in self
             .axes
             .iter()
-            .zip(out[axes..].chunks_exact_mut(AxisSettings::RECORD))
+            .zip(out[axes..IO_AT].chunks_exact_mut(AxisSettings::RECORD))
         {
             axis.encode(chunk);
         }
+        let mut io = [0u8; IO_IMAGE_LEN];
+        self.io.encode(&mut io);
+        out[IO_AT..].copy_from_slice(&io);
     }
 
     pub fn from_image(image: &[u8]) -> Result<Settings, ImageError> {
@@ -498,14 +509,23 @@ impl Settings {
             rest
         };
         let mut axes = [AxisSettings::FACTORY; MAX_DEVICES];
-        for (axis, chunk) in axes.iter_mut().zip(rest.chunks_exact(record)) {
+        let (records, io) = rest
+            .split_at_checked(MAX_DEVICES * record)
+            .ok_or(ImageError::Invalid)?;
+        for (axis, chunk) in axes.iter_mut().zip(records.chunks_exact(record)) {
             *axis = AxisSettings::decode(chunk, format).ok_or(ImageError::Invalid)?;
         }
+        let io = if format >= 2 {
+            IoSettings::decode(io).map_err(|_| ImageError::Invalid)?
+        } else {
+            IoSettings::FACTORY
+        };
         Ok(Settings {
             base_address,
             serial,
             axes,
             watchdog,
+            io,
         })
     }
 }

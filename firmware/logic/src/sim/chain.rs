@@ -16,6 +16,7 @@ use core::convert::Infallible;
 use heapless::Vec;
 
 use super::powerstep01::Powerstep01;
+use super::shift::ShiftChain;
 use crate::powerstep::chain::{ChainBus, MAX_DEVICES};
 
 /// Bytes of the last window kept for [`SimChain::last_window`].
@@ -30,6 +31,9 @@ pub struct SimChain {
     bytes: u64,
     last_tx: Vec<u8, TRACE_LEN>,
     last_rx: Vec<u8, TRACE_LEN>,
+    /// The box's shift registers on the I/O extension's port (SPI2), for
+    /// harnesses that drive the whole board; none unless attached.
+    io: ShiftChain,
 }
 
 impl SimChain {
@@ -42,7 +46,22 @@ impl SimChain {
             bytes: 0,
             last_tx: Vec::new(),
             last_rx: Vec::new(),
+            io: ShiftChain::new(0, 0),
         }
+    }
+
+    /// Wire `io` to the I/O extension's port (replacing what was there).
+    pub fn attach_io(&mut self, io: ShiftChain) {
+        self.io = io;
+    }
+
+    /// The shift registers on the I/O extension's port.
+    pub fn io(&self) -> &ShiftChain {
+        &self.io
+    }
+
+    pub fn io_mut(&mut self) -> &mut ShiftChain {
+        &mut self.io
     }
 
     /// Number of devices.

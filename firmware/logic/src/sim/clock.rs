@@ -7,6 +7,7 @@
 
 use super::SimChain;
 use crate::bridge::Bridge;
+use crate::ioext::Action;
 
 /// A control loop that drives simulated chips.
 pub trait SimControl {
@@ -17,8 +18,18 @@ pub trait SimControl {
 }
 
 impl SimControl for Bridge<SimChain> {
+    /// The bridge's tick, then what the firmware's I/O extension driver
+    /// does before the next tick: run the transfer through the shift
+    /// registers attached to the chain ([`SimChain::attach_io`]).
     fn control_tick(&mut self, now_ms: u64) {
         self.tick(now_ms);
+        match self.take_io_action() {
+            Some(Action::Transfer(plan)) => {
+                let rx = self.chain_mut().bus_mut().io_mut().transfer(&plan);
+                let _ = self.on_io_done(&rx);
+            }
+            Some(Action::Disable) | None => {}
+        }
     }
     fn chips(&mut self) -> &mut SimChain {
         self.chain_mut().bus_mut()
