@@ -18,8 +18,8 @@
 //!
 //! The HAL's `Adc::new` reads the factory VREFINT calibration from system
 //! memory (0x1FFF_7A2A, next to the unique ID that HardFaults under QEMU's
-//! `netduinoplus2`): keep this module out of a QEMU build, like the I2C and
-//! USB drivers. `convert` polls the ADC's start and end flags without a
+//! `netduinoplus2`): the QEMU platform never starts it (nor the I2C
+//! driver), it uses a stand-in. `convert` polls the ADC's start and end flags without a
 //! limit; on working silicon that is the ~23 µs of one conversion.
 
 use bridge_logic::postep::analog::AnalogSample;
