@@ -229,7 +229,7 @@ pub const FLASH_SECTORS: usize = 2;
 /// Bytes of the host file.
 pub const FLASH_SIZE: usize = FLASH_SECTOR * FLASH_SECTORS;
 /// Longest host path taken from the `flash=PATH` argument.
-const PATH_MAX: usize = 192;
+const PATH_MAX: usize = 255;
 
 /// Why a settings-flash operation failed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
