@@ -162,6 +162,11 @@ impl Rs485 {
         }
     }
 
+    /// Whether DE (the transceiver's driver enable) is driven high now.
+    pub fn driver_enabled(&self) -> bool {
+        self.de.is_set_high()
+    }
+
     /// False if the HAL refused the configuration (nothing is ever received).
     pub fn is_configured(&self) -> bool {
         self.serial.is_some()

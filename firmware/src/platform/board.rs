@@ -140,6 +140,21 @@ pub fn settings_flash(flash: pac::FLASH) -> SettingsFlash {
     StoreFlash::new(flash)
 }
 
+/// How far SysTick time may fall behind real time, in percent: not at all,
+/// it counts SYSCLK cycles.
+pub const SYSTICK_LAG_MAX_PERCENT: u64 = 0;
+
+/// Run `f` and return how long it took in µs on a clock that is not
+/// SysTick, for the on-target tests that check the monotonic's rate: the
+/// DWT cycle counter at `sysclk_hz` (the caller has enabled it; `f` must
+/// take less than one wrap, 25 s at 168 MHz).
+pub fn measure_us(sysclk_hz: u32, f: impl FnOnce()) -> u64 {
+    let start = cortex_m::peripheral::DWT::cycle_count();
+    f();
+    let cycles = cortex_m::peripheral::DWT::cycle_count().wrapping_sub(start);
+    u64::from(cycles) * 1_000_000 / u64::from(sysclk_hz.max(1))
+}
+
 /// HardFault: chips off, then wait for the watchdog's reset. Until then,
 /// and through the reset (the pin floats from reset until `init`
 /// configures it), the board's pull-down on STBY keeps the chips in reset.

@@ -19,6 +19,7 @@
 //! | `SettingsFlash` | sectors 10 and 11 (`drivers::flash`) | RAM copy of a host file, written through by semihosting | flash controller not modelled |
 //! | `I2cSlaveDriver` | I2C1 slave (`drivers::i2c_slave`) | takes address changes; I2C1 stays off | I2C transfers hang |
 //! | `HardFault` handler | STBY low, wait for the watchdog | exit QEMU with status 1 | a crash must end a run |
+//! | `measure_us`, `SYSTICK_LAG_MAX_PERCENT` (on-target tests) | DWT cycle counter; SysTick exact | host clock (semihosting); SysTick up to 50 % slow | QEMU's cycle counter reads 0; its SysTick re-arms late |
 //! | defmt transport | RTT (probe) | semihosting stdout | no probe |
 //!
 //! USB (when it comes) belongs here too: OTG FS on the board, a stand-in

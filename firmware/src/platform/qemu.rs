@@ -257,9 +257,16 @@ pub struct SettingsFlash {
     ram: SimFlash<FLASH_SECTOR, FLASH_SECTORS>,
     /// `None`: RAM only.
     file: Option<File>,
+    /// Kept untouched, for [`SettingsFlash::free`].
+    flash: pac::FLASH,
 }
 
 impl SettingsFlash {
+    /// The FLASH peripheral back (the host file is closed).
+    pub fn free(self) -> pac::FLASH {
+        self.flash
+    }
+
     /// Copy `ram[offset..offset + len]` into the host file.
     fn write_through(&mut self, offset: u32, len: usize) -> Result<(), SettingsFlashError> {
         let Some(file) = self.file.as_mut() else {
@@ -323,11 +330,12 @@ impl NorFlash for SettingsFlash {
 
 /// The settings flash, loaded from the host file named by the `flash=PATH`
 /// semihosting argument (created erased if missing). The FLASH peripheral
-/// stays untouched.
-pub fn settings_flash(_flash: pac::FLASH) -> SettingsFlash {
+/// stays untouched (QEMU does not model its controller).
+pub fn settings_flash(flash: pac::FLASH) -> SettingsFlash {
     let mut flash = SettingsFlash {
         ram: SimFlash::new(),
         file: None,
+        flash,
     };
     let mut path = [0u8; PATH_MAX + 1];
     let Some(path) = flash_path(&mut path) else {
@@ -404,6 +412,26 @@ fn flash_path(buf: &mut [u8; PATH_MAX + 1]) -> Option<&CStr> {
     slot.copy_from_slice(path);
     *buf.get_mut(path.len())? = 0;
     CStr::from_bytes_until_nul(buf).ok()
+}
+
+/// How far SysTick time may fall behind real time, in percent. QEMU counts
+/// 168 MHz of its own time, but re-arms the SysTick at each wrap (every
+/// 100 µs here) from the moment it serves it, so every period is late by
+/// the host's latency: measured 10-30 % behind the host clock on a 2-core
+/// machine, varying with its load (its TIM2 model, re-armed every 1 ms,
+/// lags ~1 %). The monotonic, Modbus timing included, runs that much slow
+/// under QEMU; a wrong SysTick rate would be off by 10x.
+pub const SYSTICK_LAG_MAX_PERCENT: u64 = 50;
+
+/// Run `f` and return how long it took in µs on a clock that is not
+/// SysTick, for the on-target tests that check the monotonic's rate: the
+/// host's, through semihosting (SYS_CLOCK, 10 ms resolution; QEMU's DWT
+/// cycle counter reads 0). 0 if the host does not answer.
+pub fn measure_us(_sysclk_hz: u32, f: impl FnOnce()) -> u64 {
+    let centiseconds = || semihosting::sys::arm_compat::sys_clock().unwrap_or(0) as u64;
+    let start = centiseconds();
+    f();
+    centiseconds().saturating_sub(start) * 10_000
 }
 
 /// Any HardFault (including the panic handler's `udf` after its message)
