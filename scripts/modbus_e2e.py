@@ -17,7 +17,8 @@ The scenario (PoStep60 register map: address 0x00nn = command nn):
   5. Target (0x0050, FC 0x10, 2 registers, high word first) on both axes.
   6. Poll both positions until they equal their targets (timeout).
   7. An unknown command (register 0x0099) gets exception 02.
-  8. With --save: write settings (0x003F); scripts/qemu-e2e then waits for
+  8. With --save: write settings (0x003F), retried while it is refused with
+     exception 04 (an axis still landing); scripts/qemu-e2e then waits for
      the firmware's "settings: saved" log line.
 With --check-saved it runs only the restart check instead: after QEMU was
 restarted on the same settings flash, both axes read back the max speed /
@@ -143,12 +144,24 @@ def scenario(client, move_timeout):
     return move_s
 
 
-def save(client):
-    """Write settings. The flash task writes them within 100 ms; the caller
-    waits for the firmware's "settings: saved" log line (requests during
-    the write are refused with exception 04)."""
-    write_one(client, WRITE_SETTINGS, 0, 1, multiple=False)
-    check(True, f"write settings (0x{WRITE_SETTINGS:04X}) accepted")
+def save(client, timeout):
+    """Write settings. Refused with exception 04 while an axis still moves
+    (the last axis may still be landing when its position reads the target):
+    retried until accepted. The flash task then writes them within 100 ms;
+    the caller waits for the firmware's "settings: saved" log line."""
+    start = time.monotonic()
+    refusals = 0
+    while True:
+        r = timed(client.write_register, WRITE_SETTINGS, 0, slave=1)
+        if not r.isError():
+            break
+        if not (isinstance(r, ExceptionResponse) and r.exception_code == 4):
+            raise Failure(f"write settings failed: {r}")
+        if time.monotonic() - start > timeout:
+            raise Failure(f"write settings still refused (04) after {timeout} s")
+        refusals += 1
+        time.sleep(0.05)
+    check(True, f"write settings (0x{WRITE_SETTINGS:04X}) accepted ({refusals} refusals while axes settled)")
 
 
 def check_saved(client):
@@ -188,7 +201,7 @@ def main():
         else:
             move_s = scenario(client, args.move_timeout)
             if args.save:
-                save(client)
+                save(client, args.move_timeout)
     except Failure as e:
         print(f"FAIL: {e}", file=sys.stderr)
         return 1
