@@ -27,8 +27,10 @@
 //!   system reset — the last two only while no Modbus response goes out.
 //!
 //! A panic or HardFault drives STBY low first (`firmware::failsafe`); the
-//! watchdog resets the MCU if `control_tick` stops. On any target but
-//! `thumbv7em-none-eabihf` this file is an empty `main`.
+//! watchdog resets the MCU if `control_tick` stops. Under QEMU (feature
+//! `qemu`) the same tasks run on `platform/qemu.rs`'s stand-ins, where the
+//! I2C tasks never fire. On any target but `thumbv7em-none-eabihf` this file
+//! is an empty `main`.
 #![cfg_attr(target_os = "none", no_std)]
 #![cfg_attr(target_os = "none", no_main)]
 #![deny(unsafe_code)]
@@ -42,9 +44,9 @@ fn main() {
 #[cfg(target_os = "none")]
 #[rtic::app(device = stm32f4xx_hal::pac, dispatchers = [UART4, UART5, USART6])]
 mod app {
-    use bridge_logic::bridge::{boot_settings, Bridge};
+    use bridge_logic::bridge::{boot_settings, Bridge, SettingsSource};
     use bridge_logic::persist::{Store, StoreError, MAX_IMAGE};
-    use bridge_logic::postep::settings::IMAGE_LEN;
+    use bridge_logic::postep::settings::{Settings, IMAGE_LEN};
     use bridge_logic::postep::Board;
     use bridge_logic::transport::i2c::I2cSlave;
     use bridge_logic::transport::modbus::{RtuServer, Timing};
@@ -150,13 +152,7 @@ mod app {
         delay_ms(WAKE_UP_MS, sysclk);
 
         let mut store = Store::new(platform::settings_flash(dp.FLASH));
-        let mut image = [0u8; MAX_IMAGE];
-        let loaded = store
-            .load(&mut image)
-            .map(|n| image.get(..n).unwrap_or(&[]));
-        let (settings, source) = boot_settings(loaded, |e| *e == StoreError::Empty);
-        info!("settings: {}", source);
-
+        let (settings, source) = load_settings(&mut store);
         let mut bridge = Bridge::new(bus, Board::REFERENCE, settings, source, TICK_US);
         match bridge.chain_error() {
             None => info!("chain: {=usize} powerSTEP01", bridge.axes()),
@@ -181,19 +177,7 @@ mod app {
             serial,
             &mut rcc,
         );
-        if rs485.is_configured() {
-            info!(
-                "modbus: RTU on USART2, {=u32} baud, parity {}, t1.5 {=u32} us, t3.5 {=u32} us, server ids from {=u8}, {=usize} axes",
-                serial.baud,
-                serial.parity,
-                timing.t15_us,
-                timing.t35_us,
-                bridge.base_address(),
-                bridge.axes()
-            );
-        } else {
-            error!("modbus: USART2 configuration refused, no Modbus");
-        }
+        log_modbus(&rs485, &bridge, timing);
 
         let mut analog = Analog::new(dp.ADC1, pins.supply_sense, &mut rcc);
         bridge.on_analog(analog.sample());
@@ -227,6 +211,35 @@ mod app {
                 bytes_seen,
             },
         )
+    }
+
+    /// The settings to boot with: the store's, or factory settings (and why).
+    fn load_settings(store: &mut Store<SettingsFlash>) -> (Settings, SettingsSource) {
+        let mut image = [0u8; MAX_IMAGE];
+        let loaded = store
+            .load(&mut image)
+            .map(|n| image.get(..n).unwrap_or(&[]));
+        let (settings, source) = boot_settings(loaded, |e| *e == StoreError::Empty);
+        info!("settings: {}", source);
+        (settings, source)
+    }
+
+    /// The boot log line of the Modbus line (the e2e test waits for it).
+    fn log_modbus(rs485: &Rs485, bridge: &Bridge<ChainDriver>, timing: Timing) {
+        let serial = bridge.serial();
+        if rs485.is_configured() {
+            info!(
+                "modbus: RTU on USART2, {=u32} baud, parity {}, t1.5 {=u32} us, t3.5 {=u32} us, server ids from {=u8}, {=usize} axes",
+                serial.baud,
+                serial.parity,
+                timing.t15_us,
+                timing.t35_us,
+                bridge.base_address(),
+                bridge.axes()
+            );
+        } else {
+            error!("modbus: USART2 configuration refused, no Modbus");
+        }
     }
 
     /// Spins: no `wfi`, which stops the debug clock on some probes and gains
