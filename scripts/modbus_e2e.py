@@ -10,11 +10,19 @@ against `cargo qemu`:
 The scenario (PoStep60 register map: address 0x00nn = command nn):
   1. HW/FW info (0x000A, 3 registers) of axes 1 and 2: first register 0x0041.
   2. Position (0x0040, 2 registers, high word first) of both: 0 after boot.
-  3. Max speed / acceleration / deceleration (0x0051..0x0053): axis 1 by FC
+  3. Max speed / acceleration / deceleration (0x0041..0x0043) of both: the
+     factory 1000 / 1000 / 1000 (the image booted on a fresh settings flash).
+  4. Max speed / acceleration / deceleration (0x0051..0x0053): axis 1 by FC
      0x06, axis 2 by FC 0x10; read back through 0x0041..0x0043.
-  4. Target (0x0050, FC 0x10, 2 registers, high word first) on both axes.
-  5. Poll both positions until they equal their targets (timeout).
-  6. An unknown command (register 0x0099) gets exception 02.
+  5. Target (0x0050, FC 0x10, 2 registers, high word first) on both axes.
+  6. Poll both positions until they equal their targets (timeout).
+  7. An unknown command (register 0x0099) gets exception 02.
+  8. With --save: write settings (0x003F), retried while it is refused with
+     exception 04 (an axis still landing); scripts/qemu-e2e then waits for
+     the firmware's "settings: saved" log line.
+With --check-saved it runs only the restart check instead: after QEMU was
+restarted on the same settings flash, both axes read back the max speed /
+acceleration / deceleration of step 4, and their positions are 0 again.
 Exits non-zero on the first failure; prints per-request timings.
 """
 
@@ -35,6 +43,8 @@ MAX_SPEED, ACC, DEC = 0x0041, 0x0042, 0x0043
 SET_POSITION = 0x0050
 SET_MAX_SPEED, SET_ACC, SET_DEC = 0x0051, 0x0052, 0x0053
 UNKNOWN = 0x0099
+WRITE_SETTINGS = 0x003F
+FACTORY_SPEED_ACC_DEC = [1000, 1000, 1000]
 
 # (server id, max speed steps/s, acc, dec steps/s², target steps)
 AXES = [
@@ -95,6 +105,9 @@ def scenario(client, move_timeout):
     for sid, *_ in AXES:
         pos = i32(read(client, POSITION, 2, sid))
         check(pos == 0, f"id {sid}: position {pos} after boot")
+    for sid, *_ in AXES:
+        back = [read(client, a, 1, sid)[0] for a in (MAX_SPEED, ACC, DEC)]
+        check(back == FACTORY_SPEED_ACC_DEC, f"id {sid}: factory max speed/acc/dec {back} after boot")
 
     for n, (sid, speed, acc, dec, _) in enumerate(AXES):
         multiple = n % 2 == 1
@@ -131,6 +144,34 @@ def scenario(client, move_timeout):
     return move_s
 
 
+def save(client, timeout):
+    """Write settings. Refused with exception 04 while an axis still moves
+    (the last axis may still be landing when its position reads the target):
+    retried until accepted. The flash task then writes them within 100 ms;
+    the caller waits for the firmware's "settings: saved" log line."""
+    start = time.monotonic()
+    refusals = 0
+    while True:
+        r = timed(client.write_register, WRITE_SETTINGS, 0, slave=1)
+        if not r.isError():
+            break
+        if not (isinstance(r, ExceptionResponse) and r.exception_code == 4):
+            raise Failure(f"write settings failed: {r}")
+        if time.monotonic() - start > timeout:
+            raise Failure(f"write settings still refused (04) after {timeout} s")
+        refusals += 1
+        time.sleep(0.05)
+    check(True, f"write settings (0x{WRITE_SETTINGS:04X}) accepted ({refusals} refusals while axes settled)")
+
+
+def check_saved(client):
+    for sid, speed, acc, dec, _ in AXES:
+        back = [read(client, a, 1, sid)[0] for a in (MAX_SPEED, ACC, DEC)]
+        check(back == [speed, acc, dec], f"id {sid}: max speed/acc/dec {back} after the restart (saved)")
+        pos = i32(read(client, POSITION, 2, sid))
+        check(pos == 0, f"id {sid}: position {pos} after the restart")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--host", default="127.0.0.1")
@@ -138,6 +179,8 @@ def main():
     ap.add_argument("--timeout", type=float, default=2.0, help="response timeout per request, s")
     ap.add_argument("--connect-timeout", type=float, default=20.0, help="s to wait for the port")
     ap.add_argument("--move-timeout", type=float, default=30.0, help="s to wait for both axes")
+    ap.add_argument("--save", action="store_true", help="write settings after the scenario")
+    ap.add_argument("--check-saved", action="store_true", help="only check the saved settings after a restart")
     args = ap.parse_args()
     # pymodbus logs every exception response it decodes; the scenario checks them.
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
@@ -151,8 +194,14 @@ def main():
             return 1
         time.sleep(0.2)
     t0 = time.monotonic()
+    move_s = 0.0
     try:
-        move_s = scenario(client, args.move_timeout)
+        if args.check_saved:
+            check_saved(client)
+        else:
+            move_s = scenario(client, args.move_timeout)
+            if args.save:
+                save(client, args.move_timeout)
     except Failure as e:
         print(f"FAIL: {e}", file=sys.stderr)
         return 1

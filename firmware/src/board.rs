@@ -162,6 +162,7 @@ pub fn configure(
     gpioc: gpio::gpioc::Parts,
 ) -> Pins {
     let (host_i2c_scl, host_i2c_sda) = host_i2c_pins(gpiob.pb6, gpiob.pb7);
+    let (modbus_tx, modbus_rx, modbus_de) = modbus_pins(gpioa.pa2, gpioa.pa3, gpioa.pa1);
     Pins {
         // SCK ≤ 4 MHz: medium slew is ample and keeps edges on the chain cable soft.
         chain_sck: gpioa.pa5.into_alternate().speed(Speed::Medium),
@@ -177,14 +178,21 @@ pub fn configure(
         host_i2c_scl,
         host_i2c_sda,
         supply_sense: gpioa.pa0.into_analog(),
-        // ≤ 19200 baud: low slew is ample and keeps the cable quiet.
-        modbus_tx: gpioa.pa2.into_alternate().speed(Speed::Low),
-        modbus_rx: gpioa.pa3.into_alternate().internal_pull_up(true),
-        modbus_de: gpioa
-            .pa1
-            .into_push_pull_output_in_state(PinState::Low)
-            .speed(Speed::Low),
+        modbus_tx,
+        modbus_rx,
+        modbus_de,
     }
+}
+
+/// The RS-485 lines: TX and RX on USART2's AF7 (RX with its pull-up), DE
+/// low (receive). ≤ 19200 baud: low slew is ample and keeps the cable quiet.
+pub fn modbus_pins(tx: gpio::PA2, rx: gpio::PA3, de: gpio::PA1) -> (ModbusTx, ModbusRx, ModbusDe) {
+    (
+        tx.into_alternate().speed(Speed::Low),
+        rx.into_alternate().internal_pull_up(true),
+        de.into_push_pull_output_in_state(PinState::Low)
+            .speed(Speed::Low),
+    )
 }
 
 /// The host I2C lines: AF4, open drain, no internal pull-up (the ~40 kΩ

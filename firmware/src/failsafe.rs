@@ -1,20 +1,21 @@
 //! Last-resort paths that switch the powerSTEP01 bridges off: the panic
-//! handler (board and QEMU builds) and, on the board, the HardFault handler.
+//! handler (here, on both platforms) and the HardFault handler (the
+//! platform's: `platform/board.rs`, `platform/qemu.rs`).
 //!
 //! Both drive the chain's STBY/RESET low ([`chips_off`]), which holds every
 //! chip in reset with its power bridges off, before anything else, so a
 //! crashed MCU never leaves a motor running on its last command. STBY then
 //! stays low until the next MCU reset: nothing after these paths drives it
-//! high again. (The running firmware has a third path: `main.rs` drives the
+//! high again. (The running firmware has a third path: the app drives the
 //! same pin low once `Bridge::chain_dead()` says the chain can no longer be
 //! reached over SPI.)
 //!
 //! * **Panic** ([`panic`], replacing panic-probe): interrupts off, STBY low,
 //!   the message through defmt (once: a panic while logging skips it), then
 //!   `udf`, as panic-probe does. The resulting HardFault is what probe-rs
-//!   reports on the board; under QEMU the HardFault handler in `qemu.rs`
+//!   reports on the board; under QEMU the platform's HardFault handler
 //!   ends QEMU with exit status 1.
-//! * **HardFault** on the board ([`HardFault`]): STBY low, then spin. The
+//! * **HardFault** on the board (`platform/board.rs`): STBY low, then spin. The
 //!   independent watchdog (started in `init`, fed by the control tick) resets
 //!   the MCU a few seconds later; until then, and through the reset (the pin
 //!   floats from reset until `init` configures it), the board's pull-down on
@@ -24,8 +25,7 @@
 //! cortex-m-rt nor RTIC enables it), so the fault escalates; interrupts
 //! masked by PRIMASK do not stop that.
 
-// One `steal` of GPIOC (an `unsafe fn` of the PAC) and cortex-m-rt's
-// `unsafe fn` HardFault contract.
+// One `steal` of GPIOC (an `unsafe fn` of the PAC).
 #![allow(unsafe_code)]
 
 use core::panic::PanicInfo;
@@ -85,15 +85,4 @@ fn panic(info: &PanicInfo) -> ! {
         defmt::error!("{}", defmt::Display2Format(info));
     }
     cortex_m::asm::udf()
-}
-
-/// HardFault on the board: chips off, then wait for the watchdog's reset
-/// (see the module docs). Under QEMU `qemu.rs` has its own, which exits.
-#[cfg(not(feature = "qemu"))]
-#[cortex_m_rt::exception]
-unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
-    chips_off();
-    loop {
-        core::sync::atomic::compiler_fence(Ordering::SeqCst);
-    }
 }

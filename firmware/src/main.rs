@@ -1,77 +1,39 @@
-//! stepbridge firmware: the RTIC 2 application for the STM32F405.
+//! stepbridge: the RTIC 2 application, written once for the board and QEMU.
 //!
-//! Thin glue only. Pins and peripherals come from [`board`], the chain SPI
-//! from [`chain_spi`], the Modbus line from [`rs485`], time from [`clock`];
-//! every decision about what goes on a bus belongs to the logic crate
-//! (`bridge_logic`). This file wires them to interrupts:
+//! Thin glue: pins come from `firmware::board`, peripherals from
+//! `firmware::platform` (the board's, or QEMU's stand-ins under the same
+//! names), every decision from the logic crate (`bridge_logic`).
 //!
-//! * `init`: clocks, SysTick monotonic, pins, chain reset pulse, settings
-//!   from the flash store, the bridge (chain detection and axis setup), I2C
-//!   slave, Modbus line, ADC, timer.
-//! * `control_tick` (TIM2 update, 1 kHz, priority 3): `bridge.tick(now)`: one
-//!   chain batch for every axis; STBY low for good once the bridge declares
-//!   the chain dead; LED; feeds the independent watchdog; spawns the slow
-//!   jobs.
-//! * `modbus_uart` (USART2, priority 4): every received byte is stamped with
-//!   the monotonic's µs and handed to the Modbus RTU server; the response
-//!   goes out by TXE/TC interrupts with DE high (see `rs485`). Highest
-//!   priority, so stamps are accurate and a response never stalls between
-//!   characters (a pause > t1.5 would break the frame).
-//! * `modbus_server` (async, priority 2): sleeps until the server's t3.5
-//!   deadline, then locks the bridge only for `poll` (which executes the
-//!   request) and starts the response at once; a changed address base goes
-//!   on to the I2C slave's own addresses.
-//! * `i2c_event` / `i2c_error` (I2C1, priority 2): bytes in and out of the
-//!   PoStep60 I2C protocol; the bridge is locked only to execute a write or
-//!   prepare a read.
-//! * `housekeeping` (priority 1): ADC samples, pending settings save (flash),
-//!   system reset — the last two only while no Modbus response is going out.
-//! * `idle`: spins (no `wfi`, which stops the debug clock on some probes and
-//!   gains nothing while a 1 kHz tick keeps waking the core).
+//! | task | runs on | priority | owns | shares |
+//! |---|---|---|---|---|
+//! | `init` | reset | – | RCC, SysTick, IWDG, GPIO; starts everything below | – |
+//! | `modbus_uart` | USART2 | 4 | – | `rs485` (USART2, DE), `modbus` |
+//! | `control_tick` | TIM2, 1 kHz | 3 | `tick` (TIM2), `watchdog` (IWDG), LED, STBY | `bridge` (chain: SPI1 + CS) |
+//! | `modbus_server` | async | 2 | – | `bridge`, `rs485`, `modbus`, `i2c` |
+//! | `i2c_event`, `i2c_error` | I2C1_EV, I2C1_ER | 2 | – | `bridge`, `i2c` (I2C1), `i2c_proto` |
+//! | `housekeeping` | async, 10 Hz | 1 | `analog` (ADC1), `store` (FLASH) | `bridge`, `rs485` |
 //!
-//! A panic, and a HardFault on the board, drive STBY low first of all
-//! ([`failsafe`]); the independent watchdog (board only, started in `init`)
-//! resets the MCU if the control tick stops.
+//! * `modbus_uart` stamps each received byte with the monotonic's µs and
+//!   hands it to the Modbus RTU server; the response leaves by TXE/TC
+//!   interrupts with DE high. Highest priority: stamps stay accurate and a
+//!   response never pauses between characters (> t1.5 would break it).
+//! * `control_tick`: `bridge.tick(now)` — one chain batch for every axis —,
+//!   STBY low for good once the bridge declares the chain dead, LED,
+//!   watchdog feed, and the 10 Hz spawn of `housekeeping`.
+//! * `modbus_server` sleeps until the server's t3.5 deadline, executes the
+//!   request with the bridge locked and starts the response; a changed
+//!   address base goes on to the I2C slave. `i2c_*` move PoStep60 I2C bytes.
+//! * `housekeeping`: ADC samples, a pending settings save, a requested
+//!   system reset — the last two only while no Modbus response goes out.
 //!
-//! With the `qemu` feature the same app runs on QEMU's `netduinoplus2`;
-//! [`qemu`] lists what is replaced (clocks, chain, ADC, flash, I2C, log
-//! transport) and the control tick comes from the monotonic
-//! (`control_loop`) because QEMU's TIM2 is unusable.
-//!
-//! The firmware is built only for `thumbv7em-none-eabihf` (`cargo fw`,
-//! `cargo qemu`). On any other target this file compiles to an empty `main`,
-//! so a host-side `cargo check --workspace` still works.
+//! A panic or HardFault drives STBY low first (`firmware::failsafe`); the
+//! watchdog resets the MCU if `control_tick` stops. Under QEMU (feature
+//! `qemu`) the same tasks run on `platform/qemu.rs`'s stand-ins, where the
+//! I2C tasks never fire. On any target but `thumbv7em-none-eabihf` this file
+//! is an empty `main`.
 #![cfg_attr(target_os = "none", no_std)]
 #![cfg_attr(target_os = "none", no_main)]
 #![deny(unsafe_code)]
-
-#[cfg(all(target_os = "none", not(feature = "qemu")))]
-mod analog;
-// Under QEMU the chain SPI, HSE and I2C assignments go unused (the board
-// build checks them).
-#[cfg(target_os = "none")]
-#[cfg_attr(feature = "qemu", allow(dead_code))]
-mod board;
-#[cfg(all(target_os = "none", not(feature = "qemu")))]
-mod chain_spi;
-#[cfg(target_os = "none")]
-mod clock;
-#[cfg(target_os = "none")]
-mod failsafe;
-#[cfg(all(target_os = "none", not(feature = "qemu")))]
-mod flash_store;
-// Under QEMU not built: `qemu::NoI2c` stands in for the driver.
-#[cfg(all(target_os = "none", not(feature = "qemu")))]
-mod i2c_slave;
-#[cfg(all(target_os = "none", feature = "qemu"))]
-mod qemu;
-#[cfg(target_os = "none")]
-mod rs485;
-
-#[cfg(all(target_os = "none", not(feature = "qemu")))]
-use defmt_rtt as _;
-#[cfg(all(target_os = "none", feature = "qemu"))]
-use defmt_semihosting as _;
 
 #[cfg(not(target_os = "none"))]
 fn main() {
@@ -82,47 +44,24 @@ fn main() {
 #[cfg(target_os = "none")]
 #[rtic::app(device = stm32f4xx_hal::pac, dispatchers = [UART4, UART5, USART6])]
 mod app {
-    use bridge_logic::bridge::{boot_settings, Bridge};
-    use bridge_logic::persist::{StoreError, MAX_IMAGE};
-    use bridge_logic::postep::settings::IMAGE_LEN;
-    use bridge_logic::postep::Board;
+    use bridge_logic::bridge::{boot_settings, Bridge, SettingsSource};
+    use bridge_logic::persist::{Store, StoreError, MAX_IMAGE};
+    use bridge_logic::postep60::settings::{Settings, IMAGE_LEN};
+    use bridge_logic::postep60::Board;
+    use bridge_logic::transport::i2c::I2cSlave;
     use bridge_logic::transport::modbus::{RtuServer, Timing};
     use defmt::{debug, error, info, warn};
+    use firmware::board;
+    use firmware::drivers::clock::{self, Mono};
+    use firmware::drivers::i2c_slave::LockedTarget;
+    use firmware::drivers::rs485::{Rs485, Rx};
+    use firmware::platform::{
+        self, Analog, ChainDriver, I2cSlaveDriver, SettingsFlash, TickTimer, Watchdog,
+    };
     use rtic::Mutex;
     use rtic_monotonics::Timebase;
     use rtic_sync::signal::{SignalReader, SignalWriter};
     use stm32f4xx_hal::gpio::GpioExt;
-    use stm32f4xx_hal::rcc::{Config, RccExt};
-
-    use crate::board;
-    use crate::clock::{self, Mono};
-    use crate::rs485::{Rs485, Rx};
-
-    // The board's peripherals, or their QEMU stand-ins (crate::qemu).
-    #[cfg(not(feature = "qemu"))]
-    use crate::analog::Analog;
-    #[cfg(not(feature = "qemu"))]
-    use crate::chain_spi::ChainSpiBus as ChainBus;
-    #[cfg(not(feature = "qemu"))]
-    use crate::flash_store::{SettingsStore, StoreFlash};
-    #[cfg(not(feature = "qemu"))]
-    use crate::i2c_slave::{I2cSlaveDriver, LockedTarget};
-    #[cfg(feature = "qemu")]
-    use crate::qemu::NoI2c as I2cSlaveDriver;
-    #[cfg(feature = "qemu")]
-    use crate::qemu::{FixedAnalog as Analog, RamFlash, SettingsStore, SimChain as ChainBus};
-    use bridge_logic::transport::i2c::I2cSlave;
-    // (Named in both builds: RTIC's Send assertions name the types of every
-    // resource, cfg'd out or not.)
-    use stm32f4xx_hal::timer::CounterHz;
-    use stm32f4xx_hal::watchdog::IndependentWatchdog;
-    #[cfg(not(feature = "qemu"))]
-    use stm32f4xx_hal::{
-        prelude::_fugit_ExtU32 as _,
-        time::Hertz,
-        timer::{Event, Flag, TimerExt},
-        ClearFlags, Listen,
-    };
 
     /// Control-loop rate.
     const TICK_HZ: u32 = 1_000;
@@ -133,28 +72,11 @@ mod app {
     const WAKE_UP_MS: u32 = 20;
     /// Housekeeping (ADC, pending save, reset) every this many ticks (10 Hz).
     const HOUSEKEEPING_TICKS: u64 = TICK_HZ as u64 / 10;
-    /// Worst-case erase of a 128 KiB flash sector at x8 parallelism
-    /// (STM32F405 datasheet): a settings save that erases stalls the CPU,
-    /// control tick and watchdog feed included, this long.
-    #[cfg(not(feature = "qemu"))]
-    const ERASE_MAX_MS: u32 = 4_000;
-    /// Independent-watchdog timeout, nominal (the HAL assumes a 32 kHz LSI).
-    /// The LSI of the STM32F405 runs anywhere from 17 to 47 kHz (datasheet),
-    /// so the real timeout is 0.68 to 1.88 times this: 6.5 s nominal is at
-    /// least 4.4 s, longer than the worst-case erase (a shorter one would
-    /// reset the MCU in the middle of a save), and at most 12.2 s.
-    #[cfg(not(feature = "qemu"))]
-    const WATCHDOG_MS: u32 = 6_500;
-    #[cfg(not(feature = "qemu"))]
-    const _: () = assert!(
-        WATCHDOG_MS as u64 * 32 / 47 > ERASE_MAX_MS as u64 + 2 * TICK_US as u64 / 1_000,
-        "the watchdog must outlast a sector erase at the fastest LSI"
-    );
 
     #[shared]
     struct Shared {
         /// The bridge: chain, axes, PoStep60 models; bus tasks hand it bytes.
-        bridge: Bridge<ChainBus>,
+        bridge: Bridge<ChainDriver>,
         /// USART2 + DE: the RS-485 line (Modbus UART task and server task).
         rs485: Rs485,
         /// Modbus RTU framing and function codes (same two tasks).
@@ -162,40 +84,30 @@ mod app {
         /// I2C1 as the PoStep60 I2C slave (both I2C tasks, and the Modbus
         /// server task for address changes; all at one priority, so the
         /// locks cost nothing, but an async task may not share a
-        /// `#[lock_free]` resource). A stand-in under QEMU: RTIC 2.4 cannot
-        /// `cfg` out a resource that is locked.
+        /// `#[lock_free]` resource).
         i2c: I2cSlaveDriver,
         /// PoStep60 I2C transaction framing (both I2C tasks, one priority).
-        #[cfg(not(feature = "qemu"))]
         #[lock_free]
         i2c_proto: I2cSlave,
     }
 
     #[local]
     struct Local {
-        /// TIM2 as the 1 kHz control-loop timer (update interrupt).
-        #[cfg(not(feature = "qemu"))]
-        tick_timer: CounterHz<board::ControlTimer>,
+        /// TIM2 as the control-loop timer (update interrupt).
+        tick: TickTimer,
         /// Milliseconds since boot (the bridge's clock).
-        #[cfg(not(feature = "qemu"))]
         now_ms: u64,
-        /// Status LED (pattern decided by the bridge). Under QEMU it goes to
-        /// `control_loop` as its spawn argument instead.
-        #[cfg(not(feature = "qemu"))]
+        /// Status LED (pattern decided by the bridge).
         led: board::StatusLed,
         /// Chain STBY/RESET, released (high) by `init`: driven low and given
-        /// up (`None`) once the bridge declares the chain dead. Under QEMU
-        /// (nothing attached) a spawn argument of `control_loop`, like the
-        /// LED.
-        #[cfg(not(feature = "qemu"))]
+        /// up (`None`) once the bridge declares the chain dead.
         stby: Option<board::ChainStby>,
         /// The independent watchdog, fed by every control tick.
-        #[cfg(not(feature = "qemu"))]
-        watchdog: IndependentWatchdog,
+        watchdog: Watchdog,
         /// ADC1: motor supply, die temperature, VREFINT.
         analog: Analog,
-        /// Settings store: flash sectors 10 and 11 (RAM under QEMU).
-        store: SettingsStore,
+        /// Settings store: flash sectors 10 and 11 (a host file under QEMU).
+        store: Store<SettingsFlash>,
         /// Wakes the Modbus server task when bytes arrive (UART task's end).
         bytes_in: SignalWriter<'static, ()>,
         /// The Modbus server task's end of that signal.
@@ -205,48 +117,33 @@ mod app {
     #[init]
     fn init(cx: init::Context) -> (Shared, Local) {
         let dp = cx.device;
-        #[cfg(not(feature = "qemu"))]
-        let (clocks, systick_hz) = (
-            Config::hse(Hertz::from_raw(board::HSE_HZ)).sysclk(Hertz::from_raw(board::SYSCLK_HZ)),
-            None,
-        );
-        // QEMU models no PLL (its ready bits read 0): HSI only; its SysTick
-        // counts at 168 MHz anyway.
-        #[cfg(feature = "qemu")]
-        let (clocks, systick_hz) = (Config::hsi(), Some(crate::qemu::SYSTICK_HZ));
-        let mut rcc = dp.RCC.freeze(clocks);
+        let reset_cause = platform::reset_cause(&dp.RCC);
+        let mut rcc = platform::freeze_clocks(dp.RCC);
         let sysclk = rcc.clocks.sysclk().raw();
-        info!("stepbridge: SYSCLK {=u32} Hz", sysclk);
+        info!(
+            "stepbridge on {=str}: SYSCLK {=u32} Hz, reset cause {}",
+            platform::NAME,
+            sysclk,
+            reset_cause
+        );
         // `start` asserts a whole number of cycles per tick: 168 MHz is.
-        let systick_hz = systick_hz.unwrap_or(sysclk);
+        let systick_hz = platform::systick_hz(&rcc);
         Mono::start(cx.core.SYST, systick_hz - systick_hz % clock::TICK_HZ);
 
-        // From here on a stalled control tick resets the MCU (QEMU does not
-        // model the IWDG). Frozen while a debugger halts the core.
-        #[cfg(not(feature = "qemu"))]
-        let watchdog = {
-            let mut watchdog = IndependentWatchdog::new(dp.IWDG);
-            watchdog.stop_on_debug(&dp.DBGMCU, true);
-            watchdog.start(WATCHDOG_MS.millis());
-            info!("watchdog: {=u32} ms nominal", WATCHDOG_MS);
-            watchdog
-        };
+        // From here on a stalled control tick resets the MCU.
+        let watchdog = Watchdog::start(dp.IWDG, &dp.DBGMCU);
 
         let pins = board::configure(
             dp.GPIOA.split(&mut rcc),
             dp.GPIOB.split(&mut rcc),
             dp.GPIOC.split(&mut rcc),
         );
-        #[cfg(not(feature = "qemu"))]
-        let bus = ChainBus::new(
+        let bus = platform::chain_driver(
             dp.SPI1,
             (pins.chain_sck, pins.chain_miso, pins.chain_mosi),
             pins.chain_cs,
             &mut rcc,
         );
-        // The simulated chain instead of SPI1; its pins stay configured.
-        #[cfg(feature = "qemu")]
-        let bus = crate::qemu::chain();
 
         // Reset pulse: STBY/RESET is already low (board::configure).
         let mut stby = pins.chain_stby;
@@ -254,37 +151,22 @@ mod app {
         stby.set_high();
         delay_ms(WAKE_UP_MS, sysclk);
 
-        #[cfg(not(feature = "qemu"))]
-        let flash = StoreFlash::new(dp.FLASH);
-        #[cfg(feature = "qemu")]
-        let flash = RamFlash::new();
-        let mut store = SettingsStore::new(flash);
-        let mut image = [0u8; MAX_IMAGE];
-        let loaded = store
-            .load(&mut image)
-            .map(|n| image.get(..n).unwrap_or(&[]));
-        let (settings, source) = boot_settings(loaded, |e| *e == StoreError::Empty);
-        info!("settings: {}", source);
-
+        let mut store = Store::new(platform::settings_flash(dp.FLASH));
+        let (settings, source) = load_settings(&mut store);
         let mut bridge = Bridge::new(bus, Board::REFERENCE, settings, source, TICK_US);
         match bridge.chain_error() {
             None => info!("chain: {=usize} powerSTEP01", bridge.axes()),
             Some(e) => error!("chain: detection failed ({}), running with 0 axes", e),
         }
 
-        #[cfg(feature = "qemu")]
-        let i2c = crate::qemu::NoI2c;
-        #[cfg(not(feature = "qemu"))]
-        let i2c = {
-            let (primary, secondary) = bridge.i2c_addresses();
-            I2cSlaveDriver::new(
-                dp.I2C1,
-                (pins.host_i2c_scl, pins.host_i2c_sda),
-                primary,
-                secondary,
-                &mut rcc,
-            )
-        };
+        let (primary, secondary) = bridge.i2c_addresses();
+        let i2c = I2cSlaveDriver::new(
+            dp.I2C1,
+            (pins.host_i2c_scl, pins.host_i2c_sda),
+            primary,
+            secondary,
+            &mut rcc,
+        );
 
         let serial = bridge.serial();
         let timing = Timing::for_serial(serial);
@@ -295,6 +177,56 @@ mod app {
             serial,
             &mut rcc,
         );
+        log_modbus(&rs485, &bridge, timing);
+
+        let mut analog = Analog::new(dp.ADC1, pins.supply_sense, &mut rcc);
+        bridge.on_analog(analog.sample());
+
+        let mut tick = TickTimer::new(dp.TIM2, &mut rcc);
+        if let Err(e) = tick.start(TICK_HZ) {
+            error!("control timer: start failed ({}), no control loop", e);
+        }
+        if modbus_server::spawn().is_err() {
+            error!("modbus: server task spawn failed");
+        }
+
+        let (bytes_in, bytes_seen) = rtic_sync::make_signal!(());
+        (
+            Shared {
+                bridge,
+                rs485,
+                modbus: RtuServer::new(timing),
+                i2c,
+                i2c_proto: I2cSlave::new(),
+            },
+            Local {
+                tick,
+                now_ms: 0,
+                led: pins.led,
+                stby: Some(stby),
+                watchdog,
+                analog,
+                store,
+                bytes_in,
+                bytes_seen,
+            },
+        )
+    }
+
+    /// The settings to boot with: the store's, or factory settings (and why).
+    fn load_settings(store: &mut Store<SettingsFlash>) -> (Settings, SettingsSource) {
+        let mut image = [0u8; MAX_IMAGE];
+        let loaded = store
+            .load(&mut image)
+            .map(|n| image.get(..n).unwrap_or(&[]));
+        let (settings, source) = boot_settings(loaded, |e| *e == StoreError::Empty);
+        info!("settings: {}", source);
+        (settings, source)
+    }
+
+    /// The boot log line of the Modbus line (the e2e test waits for it).
+    fn log_modbus(rs485: &Rs485, bridge: &Bridge<ChainDriver>, timing: Timing) {
+        let serial = bridge.serial();
         if rs485.is_configured() {
             info!(
                 "modbus: RTU on USART2, {=u32} baud, parity {}, t1.5 {=u32} us, t3.5 {=u32} us, server ids from {=u8}, {=usize} axes",
@@ -308,56 +240,10 @@ mod app {
         } else {
             error!("modbus: USART2 configuration refused, no Modbus");
         }
-
-        let mut analog = Analog::new(dp.ADC1, pins.supply_sense, &mut rcc);
-        bridge.on_analog(analog.sample());
-
-        #[cfg(not(feature = "qemu"))]
-        let tick_timer = {
-            let mut timer = dp.TIM2.counter_hz(&mut rcc);
-            match timer.start(Hertz::from_raw(TICK_HZ)) {
-                Ok(()) => timer.listen(Event::Update),
-                Err(e) => error!("control timer: start failed ({}), no control loop", e),
-            }
-            timer
-        };
-        #[cfg(feature = "qemu")]
-        if control_loop::spawn(pins.led, stby).is_err() {
-            error!("control loop: spawn failed");
-        }
-        if modbus_server::spawn().is_err() {
-            error!("modbus: server task spawn failed");
-        }
-
-        let (bytes_in, bytes_seen) = rtic_sync::make_signal!(());
-        (
-            Shared {
-                bridge,
-                rs485,
-                modbus: RtuServer::new(timing),
-                i2c,
-                #[cfg(not(feature = "qemu"))]
-                i2c_proto: I2cSlave::new(),
-            },
-            Local {
-                #[cfg(not(feature = "qemu"))]
-                tick_timer,
-                #[cfg(not(feature = "qemu"))]
-                now_ms: 0,
-                #[cfg(not(feature = "qemu"))]
-                led: pins.led,
-                #[cfg(not(feature = "qemu"))]
-                stby: Some(stby),
-                #[cfg(not(feature = "qemu"))]
-                watchdog,
-                analog,
-                store,
-                bytes_in,
-                bytes_seen,
-            },
-        )
     }
 
+    /// Spins: no `wfi`, which stops the debug clock on some probes and gains
+    /// nothing while a 1 kHz tick keeps waking the core.
     #[idle]
     fn idle(_: idle::Context) -> ! {
         loop {
@@ -365,56 +251,16 @@ mod app {
         }
     }
 
-    /// The control loop: one bridge tick (one chain batch for every axis).
-    #[cfg(not(feature = "qemu"))]
-    #[task(binds = TIM2, priority = 3, shared = [bridge], local = [tick_timer, now_ms, led, stby, watchdog])]
+    /// The control loop: one bridge tick (one chain batch for every axis),
+    /// then STBY, LED and the slow jobs at 10 Hz.
+    #[task(binds = TIM2, priority = 3, shared = [bridge], local = [tick, now_ms, led, stby, watchdog])]
     fn control_tick(mut cx: control_tick::Context) {
-        cx.local.tick_timer.clear_flags(Flag::Update);
+        cx.local.tick.acknowledge();
         cx.local.watchdog.feed();
         *cx.local.now_ms += 1;
-        control_step(
-            &mut cx.shared.bridge,
-            *cx.local.now_ms,
-            cx.local.led,
-            cx.local.stby,
-        );
-    }
-
-    /// The control loop under QEMU, whose TIM2 is unusable: the same step
-    /// every 1 ms of the monotonic (late ticks catch up, so the bridge's
-    /// clock keeps pace with real time).
-    #[cfg(feature = "qemu")]
-    #[task(priority = 3, shared = [bridge])]
-    async fn control_loop(
-        mut cx: control_loop::Context,
-        mut led: board::StatusLed,
-        stby: board::ChainStby,
-    ) {
-        let period = <Mono as Timebase>::Duration::from_ticks(u64::from(clock::TICK_HZ / TICK_HZ));
-        let mut next = Mono::now();
-        let mut now_ms = 0;
-        let mut stby = Some(stby);
-        loop {
-            next += period;
-            Mono::delay_until(next).await;
-            now_ms += 1;
-            control_step(&mut cx.shared.bridge, now_ms, &mut led, &mut stby);
-        }
-    }
-
-    /// One control tick at `now` ms: bridge tick, STBY, LED, slow jobs at
-    /// 10 Hz.
-    fn control_step(
-        bridge: &mut impl Mutex<T = Bridge<ChainBus>>,
-        now: u64,
-        led: &mut board::StatusLed,
-        stby: &mut Option<board::ChainStby>,
-    ) {
-        let (on, dead) = bridge.lock(|b| {
+        let now = *cx.local.now_ms;
+        let (on, dead) = cx.shared.bridge.lock(|b| {
             b.tick(now);
-            // The simulated chips live through exactly one tick period.
-            #[cfg(feature = "qemu")]
-            b.chain_mut().bus_mut().advance(u64::from(TICK_US) * 1_000);
             (b.led_on(now), b.chain_dead())
         });
         // The bridge can no longer stop the motors over SPI: hold every chip
@@ -422,12 +268,12 @@ mod app {
         // pin keeps its mode and level), so nothing can drive STBY high
         // again until the MCU resets.
         if dead {
-            if let Some(mut pin) = stby.take() {
+            if let Some(mut pin) = cx.local.stby.take() {
                 pin.set_low();
                 error!("chain: dead, STBY low: every chip held in reset until the MCU resets");
             }
         }
-        led.set_state(on.into());
+        cx.local.led.set_state(on.into());
         if now % HOUSEKEEPING_TICKS == 0 {
             // Still busy with the previous round: skip this one.
             let _ = housekeeping::spawn();
@@ -490,7 +336,6 @@ mod app {
     }
 
     /// I2C1 events: address match, data bytes, STOP (see `i2c_slave`).
-    #[cfg(not(feature = "qemu"))]
     #[task(binds = I2C1_EV, priority = 2, shared = [bridge, i2c, i2c_proto])]
     fn i2c_event(mut cx: i2c_event::Context) {
         let (bridge, proto) = (&mut cx.shared.bridge, cx.shared.i2c_proto);
@@ -501,7 +346,6 @@ mod app {
     }
 
     /// I2C1 errors: the master's NACK ending a read, bus errors.
-    #[cfg(not(feature = "qemu"))]
     #[task(binds = I2C1_ER, priority = 2, shared = [bridge, i2c, i2c_proto])]
     fn i2c_error(mut cx: i2c_error::Context) {
         let (bridge, proto) = (&mut cx.shared.bridge, cx.shared.i2c_proto);
@@ -513,7 +357,7 @@ mod app {
     /// Reprogram the I2C own addresses if the bridge's address base changed
     /// since the last call (through either bus).
     fn apply_address_change(
-        bridge: &mut impl Mutex<T = Bridge<ChainBus>>,
+        bridge: &mut impl Mutex<T = Bridge<ChainDriver>>,
         i2c: &mut I2cSlaveDriver,
     ) {
         if let Some((p, s)) = bridge.lock(|b| b.take_address_change().then(|| b.i2c_addresses())) {
@@ -541,7 +385,9 @@ mod app {
         });
         if save {
             let ok = cx.local.store.save(image).is_ok();
-            if !ok {
+            if ok {
+                info!("settings: saved");
+            } else {
                 warn!("settings: save failed");
             }
             cx.shared.bridge.lock(|b| b.saved(ok));

@@ -33,8 +33,3 @@ pub mod transport;
 // feature, for host-tests and the QEMU image.
 #[cfg(any(test, feature = "sim"))]
 pub mod sim;
-
-/// The layer's name before it became [`postep60`]; kept only until the
-/// firmware crate's platform split lands (it still imports `postep`).
-#[doc(hidden)]
-pub use postep60 as postep;

@@ -27,8 +27,8 @@
 //!   coherent with programming) is reset, so reading back returns the new
 //!   content and not a cached copy of the old one.
 //! * Where programs and erases do nothing (QEMU does not model the flash
-//!   controller), the store's read-back check turns a save into
-//!   `StoreError::Flash`.
+//!   controller, so the QEMU platform uses a host-file stand-in instead),
+//!   the store's read-back check turns a save into `StoreError::Flash`.
 
 use bridge_logic::persist::Store;
 use embedded_storage::nor_flash::{
@@ -47,6 +47,10 @@ const SECTOR_NUMBERS: [u8; 2] = [10, 11];
 pub const SECTOR_SIZE: usize = 128 * 1024;
 /// Bytes of flash the store owns (up to the end of the 1 MiB flash).
 pub const STORE_SIZE: usize = SECTOR_NUMBERS.len() * SECTOR_SIZE;
+/// Worst-case erase of one 128 KiB sector at x8 parallelism (STM32F405
+/// datasheet): a settings save that erases stalls the CPU, control tick and
+/// watchdog feed included, this long.
+pub const ERASE_MAX_MS: u32 = 4_000;
 
 const _: () = assert!(STORE_OFFSET + STORE_SIZE == 1024 * 1024);
 const _: () = assert!(SECTOR_SIZE >= bridge_logic::persist::MAX_RECORD);

@@ -49,7 +49,7 @@
 //!   above make that work without a QEMU branch: there `send` writes the
 //!   whole response and releases DE (an unconnected GPIO) before returning.
 
-use bridge_logic::postep::settings::{Parity, Serial};
+use bridge_logic::postep60::settings::{Parity, Serial};
 use bridge_logic::transport::modbus::ADU_MAX;
 use stm32f4xx_hal::nb;
 use stm32f4xx_hal::prelude::_embedded_hal_serial_nb_Read as _;
@@ -160,6 +160,11 @@ impl Rs485 {
             pos: 0,
             errors: RxErrors::default(),
         }
+    }
+
+    /// Whether DE (the transceiver's driver enable) is driven high now.
+    pub fn driver_enabled(&self) -> bool {
+        self.de.is_set_high()
     }
 
     /// False if the HAL refused the configuration (nothing is ever received).

@@ -2,7 +2,7 @@
 //!
 //! [`Analog::sample`] returns raw 12-bit counts only; every conversion to
 //! volts, degrees or PoStep60 units is in the logic crate
-//! (`bridge_logic::postep::analog`).
+//! (`bridge_logic::postep60::analog`).
 //!
 //! # Timing
 //!
@@ -18,11 +18,11 @@
 //!
 //! The HAL's `Adc::new` reads the factory VREFINT calibration from system
 //! memory (0x1FFF_7A2A, next to the unique ID that HardFaults under QEMU's
-//! `netduinoplus2`): keep this module out of a QEMU build, like the I2C and
-//! USB drivers. `convert` polls the ADC's start and end flags without a
+//! `netduinoplus2`): the QEMU platform never starts it (nor the I2C
+//! driver), it uses a stand-in. `convert` polls the ADC's start and end flags without a
 //! limit; on working silicon that is the ~23 µs of one conversion.
 
-use bridge_logic::postep::analog::AnalogSample;
+use bridge_logic::postep60::analog::AnalogSample;
 use stm32f4xx_hal::adc::config::{AdcConfig, Clock, Resolution, SampleTime};
 use stm32f4xx_hal::adc::{Adc, Temperature, Vref};
 use stm32f4xx_hal::rcc::Rcc;

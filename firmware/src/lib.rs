@@ -1,0 +1,27 @@
+//! The stepbridge firmware's hardware side, shared by the RTIC app
+//! (`main.rs`) and the on-target tests (`tests/`):
+//!
+//! * [`board`]: every pin and peripheral assignment;
+//! * [`platform`]: the one seam between the board and QEMU — the same names
+//!   (clocks, chain driver, settings flash, analog, I2C, control timer,
+//!   watchdog, reset cause, fault handler, log transport) from
+//!   `platform/board.rs` or `platform/qemu.rs`;
+//! * [`drivers`]: one module per peripheral driver (chain SPI, I2C slave,
+//!   RS-485, flash, analog, SysTick clock);
+//! * [`failsafe`]: the panic handler and the STBY switch-off it shares with
+//!   the fault handlers.
+//!
+//! Every decision about what goes on a bus belongs to the logic crate
+//! (`bridge_logic`); this crate only moves bytes.
+//!
+//! The firmware is built only for `thumbv7em-none-eabihf`; on any other
+//! target this library is empty, so a host-side `cargo check --workspace`
+//! still works.
+#![cfg(target_os = "none")]
+#![no_std]
+#![deny(unsafe_code)]
+
+pub mod board;
+pub mod drivers;
+pub mod failsafe;
+pub mod platform;

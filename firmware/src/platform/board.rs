@@ -1,0 +1,167 @@
+//! The platform on the reference board (STM32F405RG, 8 MHz crystal): the
+//! real peripherals behind the names the app uses (see `platform/mod.rs`
+//! for the table of both platforms).
+
+// cortex-m-rt's HardFault handler is an `unsafe fn` by contract.
+#![allow(unsafe_code)]
+
+use defmt_rtt as _;
+use stm32f4xx_hal::pac;
+use stm32f4xx_hal::prelude::_fugit_ExtU32 as _;
+use stm32f4xx_hal::rcc::{Config, Rcc, RccExt};
+use stm32f4xx_hal::time::Hertz;
+use stm32f4xx_hal::timer::{CounterHz, Event, Flag, TimerExt};
+use stm32f4xx_hal::watchdog::IndependentWatchdog;
+use stm32f4xx_hal::{ClearFlags, Listen};
+
+use super::ResetCause;
+use crate::board::{self, ChainCs, ChainMiso, ChainMosi, ChainSck, ChainSpi};
+use crate::drivers::chain_spi::ChainSpiBus;
+use crate::drivers::flash::{StoreFlash, ERASE_MAX_MS};
+
+pub use crate::drivers::analog::Analog;
+pub use crate::drivers::i2c_slave::I2cSlaveDriver;
+
+/// Which platform this image runs on (logged at boot).
+pub const NAME: &str = "board";
+
+/// HSE crystal through the main PLL to 168 MHz (APB1 42 MHz, APB2 84 MHz).
+pub fn freeze_clocks(rcc: pac::RCC) -> Rcc {
+    rcc.freeze(
+        Config::hse(Hertz::from_raw(board::HSE_HZ)).sysclk(Hertz::from_raw(board::SYSCLK_HZ)),
+    )
+}
+
+/// The SysTick input clock: the processor clock (SYSCLK).
+pub fn systick_hz(rcc: &Rcc) -> u32 {
+    rcc.clocks.sysclk().raw()
+}
+
+/// Why the MCU started, from RCC_CSR; the flags are cleared (RMVF) so the
+/// next reset reports only its own cause. Call it before `freeze_clocks`.
+pub fn reset_cause(rcc: &pac::RCC) -> ResetCause {
+    let csr = rcc.csr().read();
+    let cause = if csr.wdgrstf().bit_is_set() {
+        ResetCause::IndependentWatchdog
+    } else if csr.wwdgrstf().bit_is_set() {
+        ResetCause::WindowWatchdog
+    } else if csr.lpwrrstf().bit_is_set() {
+        ResetCause::LowPower
+    } else if csr.sftrstf().bit_is_set() {
+        ResetCause::Software
+    } else if csr.porrstf().bit_is_set() {
+        ResetCause::PowerOn
+    } else if csr.borrstf().bit_is_set() {
+        ResetCause::Brownout
+    } else if csr.padrstf().bit_is_set() {
+        ResetCause::Pin
+    } else {
+        ResetCause::Unknown
+    };
+    rcc.csr().modify(|_, w| w.rmvf().set_bit());
+    cause
+}
+
+/// The independent watchdog, fed by every control tick.
+pub struct Watchdog(IndependentWatchdog);
+
+impl Watchdog {
+    /// Timeout, nominal (the HAL assumes a 32 kHz LSI). The LSI of the
+    /// STM32F405 runs anywhere from 17 to 47 kHz (datasheet), so the real
+    /// timeout is 0.68 to 1.88 times this: 6.5 s nominal is at least 4.4 s,
+    /// longer than the worst-case sector erase (a shorter one would reset
+    /// the MCU in the middle of a settings save), and at most 12.2 s.
+    pub const TIMEOUT_MS: u32 = 6_500;
+
+    /// Start the IWDG (it cannot be stopped again), frozen while a debugger
+    /// halts the core.
+    pub fn start(iwdg: pac::IWDG, dbgmcu: &pac::DBGMCU) -> Watchdog {
+        let mut watchdog = IndependentWatchdog::new(iwdg);
+        watchdog.stop_on_debug(dbgmcu, true);
+        watchdog.start(Self::TIMEOUT_MS.millis());
+        defmt::info!("watchdog: {=u32} ms nominal", Self::TIMEOUT_MS);
+        Watchdog(watchdog)
+    }
+
+    pub fn feed(&mut self) {
+        self.0.feed();
+    }
+}
+
+/// The fastest LSI (47 kHz) shortens the nominal timeout by 32/47; it must
+/// still outlast a worst-case erase plus two control ticks (≥ 1 ms each).
+const _: () = assert!(
+    Watchdog::TIMEOUT_MS as u64 * 32 / 47 > ERASE_MAX_MS as u64 + 2,
+    "the watchdog must outlast a sector erase at the fastest LSI"
+);
+
+/// Why the control timer did not start.
+pub type TimerError = stm32f4xx_hal::timer::Error;
+
+/// TIM2 as the control-loop timer: its update interrupt is the control
+/// tick (the app binds `TIM2`).
+pub struct TickTimer(CounterHz<board::ControlTimer>);
+
+impl TickTimer {
+    pub fn new(tim: board::ControlTimer, rcc: &mut Rcc) -> TickTimer {
+        TickTimer(tim.counter_hz(rcc))
+    }
+
+    /// Run at `hz` with the update interrupt on.
+    pub fn start(&mut self, hz: u32) -> Result<(), TimerError> {
+        self.0.start(Hertz::from_raw(hz))?;
+        self.0.listen(Event::Update);
+        Ok(())
+    }
+
+    /// Clear the update flag (first thing in the interrupt).
+    pub fn acknowledge(&mut self) {
+        self.0.clear_flags(Flag::Update);
+    }
+}
+
+/// The chain's bus: SPI1 and the common CS line.
+pub type ChainDriver = ChainSpiBus;
+
+/// Start SPI1 for the chain (mode 3, ≤ 4 MHz; see `drivers::chain_spi`).
+pub fn chain_driver(
+    spi: ChainSpi,
+    pins: (ChainSck, ChainMiso, ChainMosi),
+    cs: ChainCs,
+    rcc: &mut Rcc,
+) -> ChainDriver {
+    ChainSpiBus::new(spi, pins, cs, rcc)
+}
+
+/// The settings store's flash: sectors 10 and 11.
+pub type SettingsFlash = StoreFlash;
+
+pub fn settings_flash(flash: pac::FLASH) -> SettingsFlash {
+    StoreFlash::new(flash)
+}
+
+/// How far SysTick time may fall behind real time, in percent: not at all,
+/// it counts SYSCLK cycles.
+pub const SYSTICK_LAG_MAX_PERCENT: u64 = 0;
+
+/// Run `f` and return how long it took in µs on a clock that is not
+/// SysTick, for the on-target tests that check the monotonic's rate: the
+/// DWT cycle counter at `sysclk_hz` (the caller has enabled it; `f` must
+/// take less than one wrap, 25 s at 168 MHz).
+pub fn measure_us(sysclk_hz: u32, f: impl FnOnce()) -> u64 {
+    let start = cortex_m::peripheral::DWT::cycle_count();
+    f();
+    let cycles = cortex_m::peripheral::DWT::cycle_count().wrapping_sub(start);
+    u64::from(cycles) * 1_000_000 / u64::from(sysclk_hz.max(1))
+}
+
+/// HardFault: chips off, then wait for the watchdog's reset. Until then,
+/// and through the reset (the pin floats from reset until `init`
+/// configures it), the board's pull-down on STBY keeps the chips in reset.
+#[cortex_m_rt::exception]
+unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
+    crate::failsafe::chips_off();
+    loop {
+        core::sync::atomic::compiler_fence(core::sync::atomic::Ordering::SeqCst);
+    }
+}

@@ -1,0 +1,53 @@
+//! The one seam between the board and QEMU 7.2's `netduinoplus2` (an
+//! STM32F405 without most of its peripherals).
+//!
+//! `board.rs` (the default) and `qemu.rs` (feature `qemu`) offer the same
+//! names; this module picks one, and nothing outside `platform/` asks which.
+//! The RTIC app, the Modbus line (`drivers::rs485`), the SysTick monotonic
+//! (`drivers::clock`), the pins (`crate::board`) and the panic handler are
+//! the same code on both.
+//!
+//! | name | board | QEMU | why QEMU differs |
+//! |---|---|---|---|
+//! | `freeze_clocks` | 8 MHz HSE, PLL to 168 MHz | 16 MHz HSI, no PLL | RCC ready bits read 0: HSE/PLL start-up hangs |
+//! | `systick_hz` | SYSCLK | 168 MHz | QEMU's SysTick counts at 168 MHz whatever the clocks say |
+//! | `reset_cause` | RCC_CSR flags (then cleared) | [`ResetCause::Unknown`] | RCC not modelled |
+//! | `Watchdog` | IWDG, 6.5 s nominal | does nothing | IWDG not modelled |
+//! | `TickTimer` | TIM2 update at the control rate (HAL) | TIM2 programmed for QEMU's timer model | QEMU's TIM2 ignores the prescaler |
+//! | `ChainDriver` | SPI1 + CS (`drivers::chain_spi`) | 4 simulated powerSTEP01s that live on the monotonic's time | no chips attached |
+//! | `Analog` | ADC1 (`drivers::analog`) | constant 24 V / 25 °C | ADC init reads calibration next to the unique ID, which HardFaults |
+//! | `SettingsFlash` | sectors 10 and 11 (`drivers::flash`) | RAM copy of a host file, written through by semihosting | flash controller not modelled |
+//! | `I2cSlaveDriver` | I2C1 slave (`drivers::i2c_slave`) | takes address changes; I2C1 stays off | I2C transfers hang |
+//! | `HardFault` handler | STBY low, wait for the watchdog | exit QEMU with status 1 | a crash must end a run |
+//! | `measure_us`, `SYSTICK_LAG_MAX_PERCENT` (on-target tests) | DWT cycle counter; SysTick exact | host clock (semihosting); SysTick up to 50 % slow | QEMU's cycle counter reads 0; its SysTick re-arms late |
+//! | defmt transport | RTT (probe) | semihosting stdout | no probe |
+//!
+//! USB (when it comes) belongs here too: OTG FS on the board, a stand-in
+//! under QEMU, whose USB OTG init hangs.
+
+#[cfg_attr(feature = "qemu", path = "qemu.rs")]
+#[cfg_attr(not(feature = "qemu"), path = "board.rs")]
+mod selected;
+
+pub use selected::*;
+
+/// Why the MCU last started (RM0090 RCC_CSR), most specific first.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
+pub enum ResetCause {
+    /// The independent watchdog expired: the control tick stalled.
+    IndependentWatchdog,
+    /// The window watchdog (unused by this firmware).
+    WindowWatchdog,
+    /// Entering Standby/Stop when the option bytes forbid it.
+    LowPower,
+    /// `SCB::sys_reset` (e.g. the PoStep60 "system reset" command).
+    Software,
+    /// Power-on or power-down reset.
+    PowerOn,
+    /// Brown-out reset.
+    Brownout,
+    /// The NRST pin (a debugger's reset, the reset button).
+    Pin,
+    /// No flag set, or the platform cannot tell (QEMU).
+    Unknown,
+}

@@ -1,0 +1,247 @@
+//! The platform under QEMU 7.2's `netduinoplus2` (feature `qemu`): stand-ins
+//! with the board's names for what QEMU does not model (see `platform/mod.rs`
+//! for the table of both platforms). Everything else — the RTIC app, the
+//! bridge, the Modbus server and its USART2/RS-485 driver, the SysTick
+//! monotonic, the panic handler — is the board's code.
+//!
+//! * **Control tick**: QEMU's TIM2 counts at a fixed 1 GHz and ignores the
+//!   prescaler (with PSC = 15 and ARR = 999, the HAL's 1 kHz at HSI, it
+//!   fires every microsecond). With PSC = 0 and ARR = 10⁶ − 1 it raises its
+//!   update interrupt every 1.01 ms (measured; QEMU re-arms it from the
+//!   moment the tick is served), so the app's TIM2 task runs unchanged.
+//! * **Chain**: [`ChainDriver`] holds [`AXES`] simulated powerSTEP01s and
+//!   lets them live through the monotonic's time that passed since the last
+//!   CS window, as real chips run on their own oscillator whatever the
+//!   control loop does. The bridge's clock counts ticks, so the two drift
+//!   apart by the timer's 1 %, as a board's MCU and chip oscillators do.
+//! * **Settings flash**: [`SettingsFlash`] (`qemu_flash.rs`) keeps the
+//!   store's two erase units in RAM, loaded at boot from a host file and
+//!   written through by semihosting, so settings saved under QEMU survive a
+//!   restart.
+//! * **Faults**: a HardFault (also the end of the panic handler, after its
+//!   message) exits QEMU with status 1, so a crash fails a run instead of
+//!   hanging it.
+
+// cortex-m-rt's HardFault handler is an `unsafe fn` by contract.
+#![allow(unsafe_code)]
+
+use core::convert::Infallible;
+
+use bridge_logic::postep60::analog::AnalogSample;
+use bridge_logic::powerstep::ChainBus;
+use bridge_logic::sim::SimChain;
+use bridge_logic::transport::i2c::{I2cSlave, I2cTarget};
+use defmt_semihosting as _;
+use stm32f4xx_hal::pac;
+use stm32f4xx_hal::rcc::{Config, Enable, Rcc, RccExt, Reset};
+
+use super::ResetCause;
+use crate::board::{
+    self, ChainCs, ChainMiso, ChainMosi, ChainSck, ChainSpi, HostI2c, HostI2cScl, HostI2cSda,
+    SenseAdc, SupplySense,
+};
+use crate::drivers::clock;
+
+// The settings flash's host-file stand-in.
+#[path = "qemu_flash.rs"]
+mod flash;
+pub use flash::{settings_flash, SettingsFlash, SettingsFlashError};
+
+/// Which platform this image runs on (logged at boot).
+pub const NAME: &str = "QEMU netduinoplus2";
+
+/// Simulated powerSTEP01s on the chain.
+pub const AXES: usize = 4;
+/// The rate QEMU's SysTick counts at, whatever the clock tree says.
+pub const SYSTICK_HZ: u32 = 168_000_000;
+/// The rate QEMU 7.2's STM32 timer model counts at (its prescaler is not
+/// applied to the interrupt period).
+pub const TIMER_HZ: u32 = 1_000_000_000;
+
+/// HSI (16 MHz), no PLL: QEMU's RCC ready bits read 0, so waiting for the
+/// HSE or the PLL hangs.
+pub fn freeze_clocks(rcc: pac::RCC) -> Rcc {
+    rcc.freeze(Config::hsi())
+}
+
+/// [`SYSTICK_HZ`], whatever `rcc` says.
+pub fn systick_hz(_rcc: &Rcc) -> u32 {
+    SYSTICK_HZ
+}
+
+/// QEMU models no RCC_CSR: always [`ResetCause::Unknown`].
+pub fn reset_cause(_rcc: &pac::RCC) -> ResetCause {
+    ResetCause::Unknown
+}
+
+/// Watchdog stand-in: QEMU does not model the IWDG, so nothing is started
+/// and feeding does nothing.
+pub struct Watchdog;
+
+impl Watchdog {
+    /// The board's nominal timeout (not applied under QEMU).
+    pub const TIMEOUT_MS: u32 = 6_500;
+
+    pub fn start(_iwdg: pac::IWDG, _dbgmcu: &pac::DBGMCU) -> Watchdog {
+        defmt::info!("watchdog: not modelled by QEMU, not started");
+        Watchdog
+    }
+
+    pub fn feed(&mut self) {}
+}
+
+/// Why the control timer did not start.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
+pub enum TimerError {
+    /// 0 Hz, or faster than the timer model counts.
+    WrongRate,
+}
+
+/// TIM2 as the control-loop timer, programmed for QEMU's timer model
+/// (module docs): its update interrupt is the control tick, as on the board.
+pub struct TickTimer(board::ControlTimer);
+
+impl TickTimer {
+    pub fn new(tim: board::ControlTimer, rcc: &mut Rcc) -> TickTimer {
+        board::ControlTimer::enable(rcc);
+        board::ControlTimer::reset(rcc);
+        TickTimer(tim)
+    }
+
+    /// Interrupt every `1 / hz` s (plus QEMU's re-arm latency).
+    pub fn start(&mut self, hz: u32) -> Result<(), TimerError> {
+        let arr = TIMER_HZ
+            .checked_div(hz)
+            .and_then(|ticks| ticks.checked_sub(1))
+            .filter(|&arr| arr > 0)
+            .ok_or(TimerError::WrongRate)?;
+        let tim = &self.0;
+        tim.psc().write(|w| w.psc().set(0));
+        tim.arr().write(|w| w.arr().set(arr));
+        tim.dier().write(|w| w.uie().set_bit());
+        tim.cr1().write(|w| w.cen().set_bit());
+        Ok(())
+    }
+
+    /// Clear the update flag (first thing in the interrupt).
+    pub fn acknowledge(&mut self) {
+        self.0.sr().write(|w| w.uif().clear_bit());
+    }
+}
+
+/// The chain stand-in: [`AXES`] simulated chips that live on the
+/// monotonic's time (module docs).
+pub struct ChainDriver {
+    chain: SimChain,
+    /// `clock::now_us` at the last window.
+    last_us: u64,
+}
+
+impl ChainDriver {
+    /// The simulated chips.
+    pub fn chain(&self) -> &SimChain {
+        &self.chain
+    }
+}
+
+impl ChainBus for ChainDriver {
+    type Error = Infallible;
+
+    fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), Infallible> {
+        let now = clock::now_us();
+        let elapsed_ns = now.saturating_sub(self.last_us).saturating_mul(1_000);
+        self.last_us = now;
+        self.chain.advance(elapsed_ns);
+        self.chain.transfer(tx, rx);
+        Ok(())
+    }
+}
+
+/// The simulated chain instead of SPI1 (which, and whose pins, stay as
+/// `board::configure` left them). Start the monotonic first.
+pub fn chain_driver(
+    _spi: ChainSpi,
+    _pins: (ChainSck, ChainMiso, ChainMosi),
+    _cs: ChainCs,
+    _rcc: &mut Rcc,
+) -> ChainDriver {
+    ChainDriver {
+        chain: SimChain::new(AXES),
+        last_us: clock::now_us(),
+    }
+}
+
+/// ADC1 stand-in: constant samples of a 24 V supply and a 25 °C die (at
+/// VDDA = 3.3 V, with the reference board's ÷20 divider). The ADC and its
+/// pin stay untouched.
+pub struct Analog;
+
+impl Analog {
+    /// 24 V / 20 = 1.2 V at the pin = 1490 counts at VDDA 3.2988 V.
+    const SAMPLE: AnalogSample = AnalogSample {
+        supply: 1490,
+        temperature: 943,
+        vrefint: 1502,
+    };
+
+    pub fn new(_adc: SenseAdc, _pin: SupplySense, _rcc: &mut Rcc) -> Analog {
+        Analog
+    }
+
+    pub fn sample(&mut self) -> AnalogSample {
+        Self::SAMPLE
+    }
+}
+
+/// I2C1 stand-in: I2C1 is never started (QEMU's I2C transfers hang), so its
+/// interrupts never fire; it takes the address changes the Modbus server
+/// hands on.
+pub struct I2cSlaveDriver;
+
+impl I2cSlaveDriver {
+    pub fn new(
+        _i2c: HostI2c,
+        _pins: (HostI2cScl, HostI2cSda),
+        _primary: u8,
+        _secondary: Option<u8>,
+        _rcc: &mut Rcc,
+    ) -> I2cSlaveDriver {
+        I2cSlaveDriver
+    }
+
+    pub fn set_addresses(&mut self, _primary: u8, _secondary: Option<u8>) {}
+
+    pub fn on_event(&mut self, _slave: &mut I2cSlave, _target: &mut impl I2cTarget) {}
+
+    pub fn on_error(&mut self, _slave: &mut I2cSlave, _target: &mut impl I2cTarget) {}
+}
+
+/// How far SysTick time may fall behind real time, in percent. QEMU counts
+/// 168 MHz of its own time, but re-arms the SysTick at each wrap (every
+/// 100 µs here) from the moment it serves it, so every period is late by
+/// the host's latency: measured 10-30 % behind the host clock on a 2-core
+/// machine, varying with its load (its TIM2 model, re-armed every 1 ms,
+/// lags ~1 %). The monotonic, Modbus timing included, runs that much slow
+/// under QEMU; a wrong SysTick rate would be off by 10x.
+pub const SYSTICK_LAG_MAX_PERCENT: u64 = 50;
+
+/// Run `f` and return how long it took in µs on a clock that is not
+/// SysTick, for the on-target tests that check the monotonic's rate: the
+/// host's, through semihosting (SYS_CLOCK, 10 ms resolution; QEMU's DWT
+/// cycle counter reads 0). 0 if the host does not answer.
+pub fn measure_us(_sysclk_hz: u32, f: impl FnOnce()) -> u64 {
+    let centiseconds = || semihosting::sys::arm_compat::sys_clock().unwrap_or(0) as u64;
+    let start = centiseconds();
+    f();
+    centiseconds().saturating_sub(start) * 10_000
+}
+
+/// Any HardFault (including the panic handler's `udf` after its message)
+/// ends QEMU with exit status 1, so a crash fails a run instead of hanging.
+#[cortex_m_rt::exception]
+unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
+    // Through semihosting's stderr, not defmt: the fault may have hit inside
+    // a defmt frame on stdout.
+    semihosting::eprintln!("stepbridge: HardFault, exiting QEMU");
+    semihosting::process::exit(1)
+}

@@ -1,0 +1,82 @@
+//! Set-up shared by the on-target tests: the app's `init` up to the point
+//! each test needs, through the same `platform` and `board` functions.
+#![allow(dead_code)] // each test binary uses part of it
+
+use firmware::board::{self, Pins};
+use firmware::drivers::clock::{self, Mono};
+use firmware::platform::{self, ResetCause};
+use stm32f4xx_hal::gpio::GpioExt;
+use stm32f4xx_hal::pac;
+use stm32f4xx_hal::rcc::Rcc;
+
+/// The target after the app's clock and pin set-up.
+pub struct Target {
+    pub rcc: Rcc,
+    pub pins: Pins,
+    pub sysclk_hz: u32,
+    pub systick_hz: u32,
+    pub reset_cause: ResetCause,
+    pub usart2: pac::USART2,
+    pub spi1: pac::SPI1,
+    pub flash: pac::FLASH,
+    pub iwdg: pac::IWDG,
+    pub dbgmcu: pac::DBGMCU,
+    pub tim2: pac::TIM2,
+}
+
+/// Clocks (platform), DWT cycle counter, SysTick monotonic, pins (board).
+pub fn setup() -> Target {
+    let Some(dp) = pac::Peripherals::take() else {
+        defmt::panic!("device peripherals taken twice");
+    };
+    let Some(mut cp) = cortex_m::Peripherals::take() else {
+        defmt::panic!("core peripherals taken twice");
+    };
+    let reset_cause = platform::reset_cause(&dp.RCC);
+    let mut rcc = platform::freeze_clocks(dp.RCC);
+    let sysclk_hz = rcc.clocks.sysclk().raw();
+    cp.DCB.enable_trace();
+    cp.DWT.enable_cycle_counter();
+    let systick_hz = platform::systick_hz(&rcc);
+    Mono::start(cp.SYST, systick_hz - systick_hz % clock::TICK_HZ);
+    let pins = board::configure(
+        dp.GPIOA.split(&mut rcc),
+        dp.GPIOB.split(&mut rcc),
+        dp.GPIOC.split(&mut rcc),
+    );
+    defmt::info!(
+        "{=str}: SYSCLK {=u32} Hz, SysTick {=u32} Hz, reset cause {}",
+        platform::NAME,
+        sysclk_hz,
+        systick_hz,
+        reset_cause
+    );
+    Target {
+        rcc,
+        pins,
+        sysclk_hz,
+        systick_hz,
+        reset_cause,
+        usart2: dp.USART2,
+        spi1: dp.SPI1,
+        flash: dp.FLASH,
+        iwdg: dp.IWDG,
+        dbgmcu: dp.DBGMCU,
+        tim2: dp.TIM2,
+    }
+}
+
+/// CPU cycles since `start` (DWT), wrapping.
+pub fn cycles_since(start: u32) -> u32 {
+    cortex_m::peripheral::DWT::cycle_count().wrapping_sub(start)
+}
+
+pub fn cycles_now() -> u32 {
+    cortex_m::peripheral::DWT::cycle_count()
+}
+
+/// Busy-wait until `clock::now_us` has advanced `us`.
+pub fn spin_us(us: u64) {
+    let start = clock::now_us();
+    while clock::now_us().saturating_sub(start) < us {}
+}
