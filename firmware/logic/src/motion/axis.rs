@@ -60,6 +60,7 @@
 //!   bridge fault (overcurrent, thermal shutdown) stops the profile at the
 //!   read-back position and switches the bridges off.
 
+use super::divisor::Divisor;
 use super::homing::{Homing, HomingError, HomingParams, HomingState, Step};
 use super::profile::{Limits, Mode, Profile};
 use super::units::{self, LIMIT_CAPS};
@@ -225,6 +226,10 @@ impl ChipImage {
     /// The next register to write: STEP_MODE, then CONFIG, then by address,
     /// among those `allowed` accepts.
     fn next(&self, allowed: impl Fn(Register) -> bool) -> Option<(Register, u32)> {
+        // The control tick asks every tick; almost always nothing is dirty.
+        if self.dirty == 0 {
+            return None;
+        }
         let first = [Register::StepMode, Register::Config];
         first
             .into_iter()
@@ -296,6 +301,9 @@ struct StopState {
 #[derive(Clone, Debug)]
 pub struct Axis {
     cfg: AxisConfig,
+    /// Divisors of the per-tick speed conversions (follow `cfg`).
+    speed_div: Divisor,
+    corr_div: Divisor,
     profile: Profile,
     state: AxisState,
     limits: LimitState,
@@ -352,6 +360,8 @@ impl Axis {
         image.set(Register::MinSpeed, 0);
         let mut axis = Axis {
             cfg,
+            speed_div: units::speed_divisor(cfg.tick_us, cfg.logical_shift),
+            corr_div: units::correction_divisor(cfg.tick_us, cfg.step, CORRECTION_TICKS),
             profile: Profile::new(cfg.tick_us, limits),
             state: AxisState::Setup(phase::HIZ),
             limits: LimitState {
@@ -642,6 +652,7 @@ impl Axis {
         }
         self.profile.stop_now();
         self.cfg.logical_shift = shift;
+        self.speed_div = units::speed_divisor(self.cfg.tick_us, shift);
         if self.stop.zero {
             self.profile.set_position(0);
         } else {
@@ -1136,17 +1147,8 @@ impl Axis {
             }
             return;
         }
-        let ff = units::speed_reg_from_internal(
-            self.profile.velocity_internal(),
-            self.cfg.tick_us,
-            shift,
-        );
-        let corr = units::correction_speed_reg(
-            self.rb.error,
-            self.cfg.tick_us,
-            self.cfg.step,
-            CORRECTION_TICKS,
-        );
+        let ff = units::speed_reg_with(self.profile.velocity_internal(), self.speed_div);
+        let corr = units::correction_reg_with(self.rb.error, self.corr_div);
         let spd = ff + corr;
         let dir = if spd < 0 || (spd == 0 && ff < 0) {
             Direction::Reverse

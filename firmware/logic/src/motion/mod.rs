@@ -3,6 +3,7 @@
 //! of bytes on any bus.
 
 pub mod axis;
+pub mod divisor;
 pub mod group;
 pub mod homing;
 pub mod profile;

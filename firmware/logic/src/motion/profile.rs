@@ -36,6 +36,8 @@
 //! partial tick from `r` to zero. It exceeds the continuous `v²/2dec` by at
 //! most `dec/8`, so move times match the analytic trapezoid within a tick.
 
+use super::divisor::Divisor;
+
 /// Velocity and acceleration fraction bits (2⁻³² steps per tick).
 const VEL_FRAC: u32 = 32;
 /// Position fraction bits (2⁻³³ steps: half a velocity quantum, so `(v+v')/2` is exact).
@@ -83,6 +85,8 @@ pub struct Profile {
     dec: i64,
     /// Deceleration of `limits`.
     dec_limit: i64,
+    /// `dec` as a divisor (the braking distance every tick needs `v / dec`).
+    dec_div: Divisor,
 }
 
 /// Steps/s → 2⁻³² steps/tick, rounded down (never above the limit).
@@ -131,7 +135,25 @@ pub fn braking_distance(v: i64, dec: i64) -> i128 {
     if v <= 0 || dec <= 0 {
         return 0;
     }
-    let m = i128::from(v / dec);
+    braking_with(v, dec, v / dec)
+}
+
+/// [`braking_distance`] given `m = ⌊v/dec⌋` (`v, dec > 0`).
+fn braking_with(v: i64, dec: i64, m: i64) -> i128 {
+    // In 64 bits when (2m+1)·v fits (always while cruising): dec·m ≤ v, so
+    // dec·m·(m+1) ≤ (m+1)·v ≤ (2m+1)·v fits too and the result is the same.
+    let (uv, ud, um) = (v.unsigned_abs(), dec.unsigned_abs(), m.unsigned_abs());
+    if v > 0 && dec > 0 && m >= 0 {
+        if let Some(a) = um
+            .checked_mul(2)
+            .and_then(|t| t.checked_add(1))
+            .and_then(|t| t.checked_mul(uv))
+        {
+            let b = ud * um * (um + 1);
+            return i128::from(a - b);
+        }
+    }
+    let m = i128::from(m);
     (2 * m + 1) * i128::from(v) - i128::from(dec) * m * (m + 1)
 }
 
@@ -154,6 +176,7 @@ impl Profile {
             acc: 1,
             dec: 1,
             dec_limit: 1,
+            dec_div: Divisor::new(1),
         };
         p.set_limits(limits);
         p
@@ -161,6 +184,28 @@ impl Profile {
 
     pub fn tick_us(&self) -> u32 {
         self.tick_us
+    }
+
+    /// The deceleration in use, with its divisor (only when it changes: the
+    /// reciprocal costs a division).
+    fn set_dec(&mut self, dec: i64) {
+        if dec != self.dec || self.dec_div.get() != dec.unsigned_abs() {
+            self.dec = dec;
+            self.dec_div = Divisor::new(dec.unsigned_abs());
+        }
+    }
+
+    /// [`braking_distance`] at the deceleration in use, division-free.
+    fn braking(&self, v: i64) -> i128 {
+        if v <= 0 {
+            return 0;
+        }
+        braking_with(v, self.dec, self.dec_div.div(v.unsigned_abs()) as i64)
+    }
+
+    /// [`reach`] at the deceleration in use, division-free.
+    fn reach(&self, v: i64, w: i64) -> i128 {
+        i128::from(v) + i128::from(w) + self.braking(w)
     }
 
     /// New max speed / acceleration / deceleration; effective at the next
@@ -171,11 +216,12 @@ impl Profile {
         self.vmax = speed_to_internal(limits.max_speed.max(1), self.tick_us).max(1);
         self.acc = acc_to_internal(limits.acc.max(1), self.tick_us);
         let dec = acc_to_internal(limits.dec.max(1), self.tick_us);
-        self.dec = if dec < self.dec {
+        let d = if dec < self.dec {
             self.stoppable_dec(dec)
         } else {
             dec
         };
+        self.set_dec(d);
         self.dec_limit = dec;
     }
 
@@ -243,7 +289,7 @@ impl Profile {
             self.mode = Mode::Position(self.position_toward(self.pos, 0));
             return;
         }
-        let d = braking_distance(self.vel.abs(), self.dec);
+        let d = self.braking(self.vel.abs());
         let stop = if self.vel > 0 {
             self.pos + d
         } else {
@@ -264,7 +310,7 @@ impl Profile {
         self.vel = 0;
         self.pos = fine;
         self.mode = Mode::Hold;
-        self.dec = self.dec_limit;
+        self.set_dec(self.dec_limit);
     }
 
     /// Re-base an axis at rest to `fine` (2⁻³³ steps) and keep what it was
@@ -273,7 +319,7 @@ impl Profile {
     pub fn rebase_fine(&mut self, fine: i128) {
         self.vel = 0;
         self.pos = fine;
-        self.dec = self.dec_limit;
+        self.set_dec(self.dec_limit);
     }
 
     /// Position, rounded to the nearest step (halves away from zero).
@@ -342,7 +388,7 @@ impl Profile {
         self.vel = next;
         if next == 0 {
             // At rest the axis can stop anywhere: back to the limit's deceleration.
-            self.dec = self.dec_limit;
+            self.set_dec(self.dec_limit);
         }
         if let Mode::Position(t) = self.mode {
             let goal = i128::from(t) << POS_FRAC;
@@ -404,9 +450,9 @@ impl Profile {
                 (v - self.dec).max(self.vmax)
             };
             let lower = (v - self.dec).max(0);
-            if reach(v, upper, self.dec) <= r {
+            if self.reach(v, upper) <= r {
                 upper
-            } else if reach(v, lower, self.dec) > r {
+            } else if self.reach(v, lower) > r {
                 // Inside the braking distance: brake as hard as allowed.
                 lower
             } else {
@@ -423,8 +469,9 @@ impl Profile {
         // reach at a segment boundary k·dec is v + dec·k(k+1); find the last
         // boundary in [lower, upper] that still fits.
         let boundary = |k: i64| i128::from(v) + i128::from(dec) * i128::from(k) * i128::from(k + 1);
-        let mut lo = lower / dec; // boundary(lo) ≤ reach(lower) ≤ r
-        let mut hi = upper / dec + 1; // boundary(hi) ≥ reach(upper) > r
+        // lower, upper ≥ 0 here.
+        let mut lo = self.dec_div.div(lower.unsigned_abs()) as i64; // boundary(lo) ≤ reach(lower) ≤ r
+        let mut hi = self.dec_div.div(upper.unsigned_abs()) as i64 + 1; // boundary(hi) ≥ reach(upper) > r
         while hi - lo > 1 {
             let mid = lo + (hi - lo) / 2;
             if boundary(mid) <= r {
@@ -489,6 +536,27 @@ mod tests {
         assert_eq!(acc_to_internal(1_000_000, MS), 1 << 32);
         assert_eq!(acc_to_internal(1, MS), 4294);
         assert_eq!(acc_to_internal(0, 1), 1);
+    }
+
+    /// The formula in 128 bits, as the module doc writes it.
+    fn braking_reference(v: i64, dec: i64) -> i128 {
+        let m = i128::from(v / dec);
+        (2 * m + 1) * i128::from(v) - i128::from(dec) * m * (m + 1)
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn braking_in_64_bits_equals_the_128_bit_formula(
+            v in 1i64..,
+            dec in 1i64..,
+        ) {
+            proptest::prop_assert_eq!(braking_distance(v, dec), braking_reference(v, dec));
+        }
+
+        #[test]
+        fn braking_with_small_decelerations_too(v in 1i64.., dec in 1i64..1_000_000) {
+            proptest::prop_assert_eq!(braking_distance(v, dec), braking_reference(v, dec));
+        }
     }
 
     #[test]

@@ -8,6 +8,7 @@
 //! microsteps 1/2^S full step (the chip's STEP_SEL S). Chip speeds and
 //! accelerations count full steps (facts doc §4).
 
+use super::divisor::Divisor;
 use super::profile::Limits;
 use crate::powerstep::fields::StepSel;
 use crate::powerstep::units::ACC_MAX_FINITE;
@@ -77,6 +78,40 @@ pub const fn speed_reg_from_internal(v: i64, tick_us: u32, logical_shift: u8) ->
     } else {
         v / div
     }
+}
+
+/// The divisor of [`speed_reg_from_internal`] (`tick_us · 2^(6+L)`), for the
+/// control tick's division-free [`speed_reg_with`].
+pub const fn speed_divisor(tick_us: u32, logical_shift: u8) -> Divisor {
+    Divisor::new((tick_us as u64) << (6 + logical_shift as u64))
+}
+
+/// [`speed_reg_from_internal`] with its divisor precomputed: the same value.
+pub const fn speed_reg_with(v: i64, div: Divisor) -> i64 {
+    div.div_signed(v)
+}
+
+/// The divisor of [`correction_speed_reg`] (`tick_us · ticks · 2^S`, at
+/// least 1), for the control tick's division-free [`correction_reg_with`].
+pub const fn correction_divisor(tick_us: u32, step: StepSel, ticks: i64) -> Divisor {
+    let div = (tick_us as i64) * ticks;
+    if div <= 0 {
+        return Divisor::new(0);
+    }
+    Divisor::new((div as u64) << step.shift())
+}
+
+/// [`correction_speed_reg`] with its divisor precomputed: the same value
+/// (for `tick_us · ticks > 0`).
+pub const fn correction_reg_with(e: i64, div: Divisor) -> i64 {
+    let e = if e > 1 << 30 {
+        1 << 30
+    } else if e < -(1 << 30) {
+        -(1 << 30)
+    } else {
+        e
+    };
+    div.div_signed(e << 26)
 }
 
 /// A following error of `e` physical microsteps corrected over `ticks` ticks,
@@ -178,8 +213,30 @@ const fn largest_within(limit: u64, logical_shift: u8, ramp: bool) -> u32 {
 
 /// The largest profile acceleration (logical steps/s²) that a chip whose
 /// ACC (or DEC) register holds `reg` can follow with its headroom.
+///
+/// Closed form of "the largest `a` with `ramp_reg_exact(a) ≤ reg`" (a move
+/// start needs it; a bisection cost ~70 000 instructions per axis on the
+/// target). Every step inverts one monotone step of [`ramp_reg_exact`]:
+/// `reg₀ = ⌊(fast·2²⁴ + den/2) / den⌋ ≤ reg − 1 ⟺ fast ≤ F = ⌊(reg·den −
+/// den/2 − 1) / 2²⁴⌋`; `fast = ⌊3·full/2⌋ ≤ F ⟺ full ≤ G = ⌊(2F + 1)/3⌋`;
+/// `full = ⌈a·2¹⁶/2^L⌉ ≤ G ⟺ a ≤ ⌊G·2^L / 2¹⁶⌋`. Equal to the bisection
+/// for every register value (test).
 pub const fn ramp_capability(reg: u32, logical_shift: u8) -> u32 {
-    largest_within(reg as u64, logical_shift, true)
+    // ramp_reg_exact is at least 2: nothing fits below (the bisection's 1).
+    if reg < 2 {
+        return 1;
+    }
+    let den: u128 = 16_000_000_000_000;
+    let f = ((reg as u128) * den - den / 2 - 1) >> 24;
+    let g = (2 * f + 1) / 3;
+    let a = (g << logical_shift) >> 16;
+    if a > u32::MAX as u128 {
+        u32::MAX
+    } else if a == 0 {
+        1
+    } else {
+        a as u32
+    }
 }
 
 /// The fastest profile limits a powerSTEP01 can follow in logical step mode
@@ -264,6 +321,28 @@ mod tests {
     }
 
     #[test]
+    fn precomputed_divisors_give_the_same_speeds() {
+        for shift in 0..=MAX_LOGICAL_SHIFT {
+            for tick_us in [1000u32, 500, 200, 1, 2_000_000] {
+                let d = speed_divisor(tick_us, shift);
+                let c = correction_divisor(tick_us, StepSel::OneTwentyEighth, 8);
+                for v in [0i64, 1, -1, 4_294_967_296_000, -123_456_789_012, i64::MAX, i64::MIN + 1] {
+                    assert_eq!(
+                        speed_reg_with(v, d),
+                        speed_reg_from_internal(v, tick_us, shift)
+                    );
+                }
+                for e in [0i64, 1, -1, 7, -7, 1000, -1000, 1 << 31, -(1 << 31), i64::MIN + 1] {
+                    assert_eq!(
+                        correction_reg_with(e, c),
+                        correction_speed_reg(e, tick_us, StepSel::OneTwentyEighth, 8)
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
     fn speed_register_from_profile_velocity() {
         // 1 logical full step per 1 ms tick = 1000 full steps/s = 67108.864 SPEED
         assert_eq!(speed_reg_from_internal(1 << 32, 1000, 0), 67_108);
@@ -304,6 +383,19 @@ mod tests {
         // the default-like 2008 steps/s²: 3012 · 0.0687 = 206.99 → 207, + 1
         assert_eq!(ramp_reg(2008 * 128, 7), 208);
         assert_eq!(ramp_reg(65_535, 0), ACC_MAX_FINITE);
+    }
+
+    #[test]
+    fn ramp_capability_equals_the_bisection_for_every_register() {
+        for shift in 0..=MAX_LOGICAL_SHIFT {
+            for reg in (0..=0x1000u32).chain([u32::MAX, u32::MAX / 3, 1 << 20]) {
+                assert_eq!(
+                    ramp_capability(reg, shift),
+                    largest_within(u64::from(reg), shift, true),
+                    "shift {shift} reg {reg}"
+                );
+            }
+        }
     }
 
     #[test]

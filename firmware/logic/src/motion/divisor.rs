@@ -1,0 +1,121 @@
+//! Exact division by a divisor known in advance, without a division
+//! instruction: the control tick divides by the same few numbers (the tick
+//! period, the deceleration) every tick, and a Cortex-M4 has no 64-bit
+//! divide — each `u64 / u64` is a ~160-instruction library call.
+//!
+//! [`Divisor::new`] pays one division to make the reciprocal
+//! `m = ⌊(2⁶⁴ − 1) / d⌋`; [`Divisor::div`] then estimates `q = ⌊n·m / 2⁶⁴⌋`
+//! with four 32 × 32 → 64-bit multiplies (UMULL) and corrects it.
+//!
+//! Why at most two corrections: `m ≤ (2⁶⁴ − 1)/d` gives `q ≤ n/d`, so `q`
+//! never exceeds `⌊n/d⌋`; `m > (2⁶⁴ − 1)/d − 1` gives
+//! `n·m/2⁶⁴ > n/d − n(1 + d)/(d·2⁶⁴) ≥ n/d − 2` for every `n < 2⁶⁴`, so `q`
+//! is at least `⌊n/d⌋ − 2`. The result is exactly `n / d` (property test).
+
+/// A divisor with its precomputed reciprocal.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Divisor {
+    d: u64,
+    m: u64,
+}
+
+/// High 64 bits of the 128-bit product `a·b`, from four 32 × 32 → 64 products
+/// (LLVM turns `u128` products into a library call on 32-bit ARM).
+const fn mul_hi(a: u64, b: u64) -> u64 {
+    let (a0, a1) = (a & 0xFFFF_FFFF, a >> 32);
+    let (b0, b1) = (b & 0xFFFF_FFFF, b >> 32);
+    let p00 = a0 * b0;
+    let p01 = a0 * b1;
+    let p10 = a1 * b0;
+    let p11 = a1 * b1;
+    let mid = (p00 >> 32) + (p01 & 0xFFFF_FFFF) + (p10 & 0xFFFF_FFFF);
+    p11 + (p01 >> 32) + (p10 >> 32) + (mid >> 32)
+}
+
+impl Divisor {
+    /// Division by `d` (0 is taken as 1: callers guard their divisors, and a
+    /// division must never trap).
+    pub const fn new(d: u64) -> Divisor {
+        let d = if d == 0 { 1 } else { d };
+        Divisor { d, m: u64::MAX / d }
+    }
+
+    /// The divisor.
+    pub const fn get(self) -> u64 {
+        self.d
+    }
+
+    /// `n / d`, exactly.
+    pub const fn div(self, n: u64) -> u64 {
+        let mut q = mul_hi(n, self.m);
+        // q ≤ n/d (module doc), so this never wraps.
+        let mut r = n - q * self.d;
+        while r >= self.d {
+            q += 1;
+            r -= self.d;
+        }
+        q
+    }
+
+    /// `n / d` rounded toward zero, as Rust's `/` on `i64`.
+    pub const fn div_signed(self, n: i64) -> i64 {
+        let q = self.div(n.unsigned_abs());
+        // q ≤ |n| ≤ 2⁶³: the negation is exact; a positive q of 2⁶³ (n =
+        // i64::MIN, d = 1) cannot be returned positive, but n < 0 there.
+        if n < 0 {
+            (q as i64).wrapping_neg()
+        } else {
+            q as i64
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    #[test]
+    fn small_divisors_and_edges_are_exact() {
+        for d in [1u64, 2, 3, 7, 10, 1000, 64_000, 1 << 32, (1 << 32) + 1, u64::MAX] {
+            let v = Divisor::new(d);
+            for n in [0u64, 1, d - 1, d, d.saturating_add(1), d.saturating_mul(2), u64::MAX - 1, u64::MAX] {
+                assert_eq!(v.div(n), n / d, "{n} / {d}");
+            }
+        }
+    }
+
+    #[test]
+    fn zero_divides_as_one() {
+        assert_eq!(Divisor::new(0).div(12345), 12345);
+        assert_eq!(Divisor::new(0).get(), 1);
+    }
+
+    #[test]
+    fn signed_division_truncates_toward_zero_like_rust() {
+        let v = Divisor::new(1000);
+        for n in [-1999i64, -1000, -999, -1, 0, 1, 999, 1000, 1999, i64::MIN, i64::MAX] {
+            assert_eq!(v.div_signed(n), n / 1000, "{n}");
+        }
+        assert_eq!(Divisor::new(1).div_signed(i64::MIN), i64::MIN);
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(20_000))]
+
+        #[test]
+        fn div_equals_the_division_operator(n in any::<u64>(), d in 1u64..) {
+            prop_assert_eq!(Divisor::new(d).div(n), n / d);
+        }
+
+        #[test]
+        fn small_divisors_too(n in any::<u64>(), d in 1u64..100_000) {
+            prop_assert_eq!(Divisor::new(d).div(n), n / d);
+        }
+
+        #[test]
+        fn signed_div_equals_the_division_operator(n in any::<i64>(), d in 1u64..(1 << 62)) {
+            prop_assert_eq!(Divisor::new(d).div_signed(n), n / d as i64);
+        }
+    }
+}
