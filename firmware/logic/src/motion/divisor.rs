@@ -77,9 +77,29 @@ mod tests {
 
     #[test]
     fn small_divisors_and_edges_are_exact() {
-        for d in [1u64, 2, 3, 7, 10, 1000, 64_000, 1 << 32, (1 << 32) + 1, u64::MAX] {
+        for d in [
+            1u64,
+            2,
+            3,
+            7,
+            10,
+            1000,
+            64_000,
+            1 << 32,
+            (1 << 32) + 1,
+            u64::MAX,
+        ] {
             let v = Divisor::new(d);
-            for n in [0u64, 1, d - 1, d, d.saturating_add(1), d.saturating_mul(2), u64::MAX - 1, u64::MAX] {
+            for n in [
+                0u64,
+                1,
+                d - 1,
+                d,
+                d.saturating_add(1),
+                d.saturating_mul(2),
+                u64::MAX - 1,
+                u64::MAX,
+            ] {
                 assert_eq!(v.div(n), n / d, "{n} / {d}");
             }
         }
@@ -94,7 +114,19 @@ mod tests {
     #[test]
     fn signed_division_truncates_toward_zero_like_rust() {
         let v = Divisor::new(1000);
-        for n in [-1999i64, -1000, -999, -1, 0, 1, 999, 1000, 1999, i64::MIN, i64::MAX] {
+        for n in [
+            -1999i64,
+            -1000,
+            -999,
+            -1,
+            0,
+            1,
+            999,
+            1000,
+            1999,
+            i64::MIN,
+            i64::MAX,
+        ] {
             assert_eq!(v.div_signed(n), n / 1000, "{n}");
         }
         assert_eq!(Divisor::new(1).div_signed(i64::MIN), i64::MIN);

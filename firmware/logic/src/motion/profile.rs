@@ -87,6 +87,9 @@ pub struct Profile {
     dec_limit: i64,
     /// `dec` as a divisor (the braking distance every tick needs `v / dec`).
     dec_div: Divisor,
+    /// The last braking distance computed at `dec`: (speed, distance). While
+    /// cruising the same one is asked for every tick.
+    memo: (i64, i128),
 }
 
 /// Steps/s → 2⁻³² steps/tick, rounded down (never above the limit).
@@ -177,6 +180,7 @@ impl Profile {
             dec: 1,
             dec_limit: 1,
             dec_div: Divisor::new(1),
+            memo: (0, 0),
         };
         p.set_limits(limits);
         p
@@ -192,19 +196,25 @@ impl Profile {
         if dec != self.dec || self.dec_div.get() != dec.unsigned_abs() {
             self.dec = dec;
             self.dec_div = Divisor::new(dec.unsigned_abs());
+            self.memo = (0, 0);
         }
     }
 
     /// [`braking_distance`] at the deceleration in use, division-free.
-    fn braking(&self, v: i64) -> i128 {
+    fn braking(&mut self, v: i64) -> i128 {
         if v <= 0 {
             return 0;
         }
-        braking_with(v, self.dec, self.dec_div.div(v.unsigned_abs()) as i64)
+        if self.memo.0 == v {
+            return self.memo.1;
+        }
+        let d = braking_with(v, self.dec, self.dec_div.div(v.unsigned_abs()) as i64);
+        self.memo = (v, d);
+        d
     }
 
     /// [`reach`] at the deceleration in use, division-free.
-    fn reach(&self, v: i64, w: i64) -> i128 {
+    fn reach(&mut self, v: i64, w: i64) -> i128 {
         i128::from(v) + i128::from(w) + self.braking(w)
     }
 
@@ -431,7 +441,7 @@ impl Profile {
         }
     }
 
-    fn position_step(&self, target: i64) -> i64 {
+    fn position_step(&mut self, target: i64) -> i64 {
         let goal = i128::from(target) << POS_FRAC;
         let rem = goal - self.pos;
         // Mirror so that the target lies ahead (r ≥ 0).

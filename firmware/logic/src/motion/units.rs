@@ -326,13 +326,32 @@ mod tests {
             for tick_us in [1000u32, 500, 200, 1, 2_000_000] {
                 let d = speed_divisor(tick_us, shift);
                 let c = correction_divisor(tick_us, StepSel::OneTwentyEighth, 8);
-                for v in [0i64, 1, -1, 4_294_967_296_000, -123_456_789_012, i64::MAX, i64::MIN + 1] {
+                for v in [
+                    0i64,
+                    1,
+                    -1,
+                    4_294_967_296_000,
+                    -123_456_789_012,
+                    i64::MAX,
+                    i64::MIN + 1,
+                ] {
                     assert_eq!(
                         speed_reg_with(v, d),
                         speed_reg_from_internal(v, tick_us, shift)
                     );
                 }
-                for e in [0i64, 1, -1, 7, -7, 1000, -1000, 1 << 31, -(1 << 31), i64::MIN + 1] {
+                for e in [
+                    0i64,
+                    1,
+                    -1,
+                    7,
+                    -7,
+                    1000,
+                    -1000,
+                    1 << 31,
+                    -(1 << 31),
+                    i64::MIN + 1,
+                ] {
                     assert_eq!(
                         correction_reg_with(e, c),
                         correction_speed_reg(e, tick_us, StepSel::OneTwentyEighth, 8)

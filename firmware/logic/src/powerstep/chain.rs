@@ -180,38 +180,6 @@ impl Default for Plan {
     }
 }
 
-/// Where each of a device's commands starts in its own stream, the stream's
-/// command-byte length, and the end of its last response (exclusive).
-struct Layout {
-    starts: [u8; MAX_COMMANDS],
-    len: usize,
-    end: usize,
-}
-
-fn lay_out(cmds: &[Command]) -> Layout {
-    let mut l = Layout {
-        starts: [0; MAX_COMMANDS],
-        len: 0,
-        end: 0,
-    };
-    // Earliest position at which the next response-producing command may go.
-    let mut free_at = 0usize;
-    for (start, cmd) in l.starts.iter_mut().zip(cmds.iter()) {
-        let resp = usize::from(cmd.response_len());
-        if resp > 0 && l.len < free_at {
-            l.len = free_at; // NOP padding
-        }
-        *start = l.len as u8;
-        if resp > 0 {
-            free_at = l.len + resp;
-            l.end = l.end.max(l.len + 1 + resp);
-        }
-        l.len += usize::from(cmd.wire_len());
-    }
-    l.end = l.end.max(l.len);
-    l
-}
-
 impl Plan {
     /// Schedule `batch` (see the module docs for the rules).
     pub fn new(batch: &Batch) -> Result<Plan, ScheduleError> {
@@ -221,61 +189,94 @@ impl Plan {
     }
 
     /// Refill this plan with `batch`. On error the plan is left empty.
+    ///
+    /// Every device's commands are first laid out in a stream of its own
+    /// (command bytes back to back, NOP padding before a second response),
+    /// then the streams are right-aligned on the longest one and transposed
+    /// into windows. The control tick runs this every tick: each command is
+    /// encoded once and every index is bounded by a constant array length.
     pub fn schedule(&mut self, batch: &Batch) -> Result<(), ScheduleError> {
-        let n = usize::from(batch.n);
-        self.n = batch.n;
+        let n = usize::from(batch.n).min(MAX_DEVICES);
+        self.n = n as u8;
         self.windows = 0;
         self.sync_window = 0;
         self.reads.clear();
-        let mut layouts: [Layout; MAX_DEVICES] = core::array::from_fn(|_| Layout {
-            starts: [0; MAX_COMMANDS],
-            len: 0,
-            end: 0,
-        });
+        // Per device: its byte stream, the stream's length, and the end of
+        // its last response (exclusive), in windows from its first byte.
+        // (4 spare bytes: a command is copied as its whole 4-byte encoding.)
+        let mut streams = [[0u8; MAX_WINDOWS + 4]; MAX_DEVICES];
+        let mut lens = [0usize; MAX_DEVICES];
+        let mut ends = [0usize; MAX_DEVICES];
         let mut sync = 0;
-        for (d, l) in layouts.iter_mut().enumerate().take(n) {
-            *l = lay_out(batch.commands(d));
-            sync = sync.max(l.len);
-        }
-        let windows = layouts
-            .iter()
-            .take(n)
-            .map(|l| sync - l.len + l.end)
-            .max()
-            .unwrap_or(0);
-        if windows > MAX_WINDOWS {
-            self.n = 0;
-            return Err(ScheduleError::TooManyWindows);
-        }
-        for row in self.tx.iter_mut().take(windows) {
-            *row = [0; MAX_DEVICES];
-        }
-        self.windows = windows as u8;
-        self.sync_window = sync.saturating_sub(1) as u8;
-        for (d, l) in layouts.iter().enumerate().take(n) {
-            let offset = sync - l.len;
-            let slot = n - 1 - d; // d < n: position of device d inside a window
-            for (index, (cmd, &start)) in batch.commands(d).iter().zip(l.starts.iter()).enumerate()
-            {
-                let at = offset + usize::from(start);
-                let (bytes, len) = cmd.encode().raw();
-                // `at + len ≤ windows ≤ MAX_WINDOWS` by construction of the layout.
-                if let Some(rows) = self.tx.get_mut(at..at + len) {
-                    for (row, b) in rows.iter_mut().zip(bytes) {
-                        if let Some(cell) = row.get_mut(slot) {
-                            *cell = b;
-                        }
-                    }
+        for d in 0..n {
+            let (Some(stream), Some(cmds)) = (streams.get_mut(d), batch.cmds.get(d)) else {
+                break;
+            };
+            let mut len = 0usize;
+            let mut end = 0usize;
+            // Earliest position at which the next response-producing command may go.
+            let mut free_at = 0usize;
+            for (index, cmd) in cmds.iter().enumerate() {
+                let resp = usize::from(cmd.response_len());
+                if resp > 0 && len < free_at {
+                    len = free_at; // NOP padding (the stream is zeroed)
                 }
-                let len = cmd.response_len();
-                if len > 0 {
+                let (bytes, k) = cmd.encode().raw();
+                if len + k > MAX_WINDOWS {
+                    self.n = 0;
+                    return Err(ScheduleError::TooManyWindows);
+                }
+                // The encoding's unused tail bytes are 0 (NOP) and the next
+                // command overwrites them.
+                if let Some(cells) = stream.get_mut(len..len + 4) {
+                    cells.copy_from_slice(&bytes);
+                }
+                if resp > 0 {
+                    free_at = len + resp;
+                    end = end.max(len + 1 + resp);
+                    // Window index relative to the stream start for now.
                     let _ = self.reads.push(ReadSlot {
                         device: d as u8,
                         index: index as u8,
-                        first_window: (at + 1) as u8,
-                        len,
+                        first_window: (len + 1) as u8,
+                        len: resp as u8,
                         command: *cmd,
                     });
+                }
+                len += k;
+            }
+            if let (Some(l), Some(e)) = (lens.get_mut(d), ends.get_mut(d)) {
+                *l = len;
+                *e = end.max(len);
+            }
+            sync = sync.max(len);
+        }
+        let mut windows = 0;
+        for (l, e) in lens.iter().zip(ends.iter()).take(n) {
+            windows = windows.max(sync - l + e);
+        }
+        if windows > MAX_WINDOWS {
+            self.n = 0;
+            self.reads.clear();
+            return Err(ScheduleError::TooManyWindows);
+        }
+        self.windows = windows as u8;
+        self.sync_window = sync.saturating_sub(1) as u8;
+        // Right-align: a device's stream starts at `sync − len`.
+        for r in self.reads.iter_mut() {
+            let off = lens.get(usize::from(r.device)).map_or(0, |l| sync - l);
+            r.first_window += off as u8;
+        }
+        for (w, row) in self.tx.iter_mut().enumerate().take(windows) {
+            *row = [0; MAX_DEVICES];
+            for ((stream, len), d) in streams.iter().zip(lens.iter()).zip(0..n) {
+                // Position w of the window is byte w − (sync − len) of the stream.
+                let Some(i) = (w + len).checked_sub(sync) else {
+                    continue;
+                };
+                if let (Some(b), Some(cell)) = (stream.get(i), row.get_mut(n - 1 - d)) {
+                    // (i < len + 4 ≤ MAX_WINDOWS + 4: past len the stream is NOPs.)
+                    *cell = *b;
                 }
             }
         }
