@@ -19,7 +19,8 @@
 //!   response never pauses between characters (> t1.5 would break it).
 //! * `control_tick`: `bridge.tick(now)` — one chain batch for every axis —,
 //!   STBY low for good once the bridge declares the chain dead, LED,
-//!   watchdog feed, and the 10 Hz spawn of `housekeeping`.
+//!   watchdog feed, the 10 Hz spawn of `housekeeping`, and its own duration
+//!   (DWT; the monotonic under QEMU) into the bridge's diagnostics.
 //! * `modbus_server` sleeps until the server's t3.5 deadline, executes the
 //!   request with the bridge locked and starts the response; a changed
 //!   address base goes on to the I2C slave. `i2c_*` move PoStep60 I2C bytes.
@@ -44,7 +45,7 @@ fn main() {
 #[cfg(target_os = "none")]
 #[rtic::app(device = stm32f4xx_hal::pac, dispatchers = [UART4, UART5, USART6])]
 mod app {
-    use bridge_logic::bridge::{boot_settings, Bridge, SettingsSource};
+    use bridge_logic::bridge::{boot_settings, Bridge, ResetCause, SettingsSource};
     use bridge_logic::persist::{Store, StoreError, MAX_IMAGE};
     use bridge_logic::postep60::settings::{Settings, IMAGE_LEN};
     use bridge_logic::postep60::Board;
@@ -56,7 +57,7 @@ mod app {
     use firmware::drivers::i2c_slave::LockedTarget;
     use firmware::drivers::rs485::{Rs485, Rx};
     use firmware::platform::{
-        self, Analog, ChainDriver, I2cSlaveDriver, SettingsFlash, TickTimer, Watchdog,
+        self, Analog, ChainDriver, I2cSlaveDriver, SettingsFlash, Stopwatch, TickTimer, Watchdog,
     };
     use rtic::Mutex;
     use rtic_monotonics::Timebase;
@@ -117,18 +118,22 @@ mod app {
     #[init]
     fn init(cx: init::Context) -> (Shared, Local) {
         let dp = cx.device;
+        let mut core = cx.core;
+        let reset_flags = platform::reset_flags(&dp.RCC);
         let reset_cause = platform::reset_cause(&dp.RCC);
         let mut rcc = platform::freeze_clocks(dp.RCC);
         let sysclk = rcc.clocks.sysclk().raw();
         info!(
-            "stepbridge on {=str}: SYSCLK {=u32} Hz, reset cause {}",
+            "stepbridge on {=str}: build {=u32:08x}, SYSCLK {=u32} Hz, reset cause {}",
             platform::NAME,
+            firmware::BUILD_ID,
             sysclk,
             reset_cause
         );
         // `start` asserts a whole number of cycles per tick: 168 MHz is.
         let systick_hz = platform::systick_hz(&rcc);
-        Mono::start(cx.core.SYST, systick_hz - systick_hz % clock::TICK_HZ);
+        Mono::start(core.SYST, systick_hz - systick_hz % clock::TICK_HZ);
+        platform::enable_stopwatch(&mut core.DCB, &mut core.DWT);
 
         // From here on a stalled control tick resets the MCU.
         let watchdog = Watchdog::start(dp.IWDG, &dp.DBGMCU);
@@ -158,6 +163,9 @@ mod app {
             None => info!("chain: {=usize} powerSTEP01", bridge.axes()),
             Some(e) => error!("chain: detection failed ({}), running with 0 axes", e),
         }
+        bridge.set_reset_cause(ResetCause::from_rcc_csr(reset_flags));
+        bridge.set_build_id(firmware::BUILD_ID);
+        bridge.set_unique_id(platform::unique_id());
 
         let (primary, secondary) = bridge.i2c_addresses();
         let i2c = I2cSlaveDriver::new(
@@ -252,9 +260,11 @@ mod app {
     }
 
     /// The control loop: one bridge tick (one chain batch for every axis),
-    /// then STBY, LED and the slow jobs at 10 Hz.
+    /// then STBY, LED and the slow jobs at 10 Hz; the tick's duration goes to
+    /// the bridge's diagnostics.
     #[task(binds = TIM2, priority = 3, shared = [bridge], local = [tick, now_ms, led, stby, watchdog])]
     fn control_tick(mut cx: control_tick::Context) {
+        let stopwatch = Stopwatch::start();
         cx.local.tick.acknowledge();
         cx.local.watchdog.feed();
         *cx.local.now_ms += 1;
@@ -278,6 +288,11 @@ mod app {
             // Still busy with the previous round: skip this one.
             let _ = housekeeping::spawn();
         }
+        let duration_us = stopwatch.elapsed_us();
+        // Free: this task's priority is the bridge's ceiling.
+        cx.shared
+            .bridge
+            .lock(|b| b.tick_timing(duration_us, TICK_US));
     }
 
     /// USART2: received bytes, stamped, into the Modbus server; the
@@ -325,6 +340,9 @@ mod app {
                         now.saturating_sub(deadline)
                     );
                 }
+                // The diagnostics' Modbus counters (0x0300..).
+                let stats = server.stats();
+                bridge.lock(|b| b.set_modbus_stats(stats));
                 rs485.errors()
             });
             cx.shared.i2c.lock(|i2c| apply_address_change(bridge, i2c));
