@@ -86,8 +86,9 @@ const SYSTEM_MEMORY: usize = 0x1FFF_0000;
 /// left them (HSI, no PLL, IWDG off): the bootloader expects a reset state.
 /// Interrupts are still off (RTIC runs `init` with them masked), but RTIC
 /// has already enabled its bound interrupts in the NVIC: they are disabled
-/// and cleared here, then SYSCFG maps system memory at 0, and the core
-/// takes the bootloader's stack pointer and reset vector. Board only.
+/// and cleared here, SysTick is stopped, VTOR set to 0, SYSCFG maps system
+/// memory at 0, and the core takes the bootloader's stack pointer and reset
+/// vector. Board only.
 pub fn jump_to_rom_bootloader(rcc: &pac::RCC, syscfg: &pac::SYSCFG) -> ! {
     cortex_m::interrupt::disable();
     // SAFETY: the NVIC's interrupt clear-enable and clear-pending registers
@@ -101,11 +102,15 @@ pub fn jump_to_rom_bootloader(rcc: &pac::RCC, syscfg: &pac::SYSCFG) -> ! {
             nvic.icpr[i].write(u32::MAX);
         }
     }
-    // SysTick off (RTIC has not started it yet, but be sure).
-    // SAFETY: SYST_CSR write; SysTick belongs to nobody any more.
+    // SysTick off (RTIC has not started it yet, but be sure), and the vector
+    // table offset at its reset value 0, where system memory is about to be
+    // mapped (a debugger may have moved it to the flash's address).
+    // SAFETY: SYST_CSR and SCB_VTOR writes; neither belongs to anybody any
+    // more, and no interrupt or exception can be taken until the jump.
     #[allow(unsafe_code)]
     unsafe {
         (*cortex_m::peripheral::SYST::PTR).csr.write(0);
+        (*cortex_m::peripheral::SCB::PTR).vtor.write(0);
     }
     rcc.apb2enr().modify(|_, w| w.syscfgen().set_bit());
     // System flash at 0x0000_0000 (MEM_MODE = 0b01, RM0090 9.2.1).
