@@ -44,6 +44,10 @@ pub type SenseAdc = pac::ADC1;
 /// of the Modbus task in `main.rs` must follow this alias). Under QEMU's
 /// `netduinoplus2` it is the second `-serial` backend.
 pub type ModbusUsart = pac::USART2;
+/// USB OTG FS (global, device and power/clock register blocks): the
+/// PoStep60 USB HID device. Its interrupt is `OTG_FS` (the `binds =` of the
+/// USB task in `main.rs` must follow this alias).
+pub type UsbOtg = (pac::OTG_FS_GLOBAL, pac::OTG_FS_DEVICE, pac::OTG_FS_PWRCLK);
 
 // ---------------------------------------------------------------------------
 // Pins in use (configured by [`configure`])
@@ -86,6 +90,10 @@ pub type ModbusRx = gpio::PA3<Alternate<7>>;
 /// the pin floats, so the board needs a pull-down on DE to keep the
 /// transceiver off the bus.
 pub type ModbusDe = gpio::PA1<Output<PushPull>>;
+/// USB OTG FS D− (AF10); the core's PHY drives it once USB starts.
+pub type UsbDm = gpio::PA11<Alternate<10>>;
+/// USB OTG FS D+ (AF10); the core pulls it up (1.5 kΩ) to connect.
+pub type UsbDp = gpio::PA12<Alternate<10>>;
 
 // ---------------------------------------------------------------------------
 // Pins reserved for later issues: declared, not configured
@@ -97,10 +105,6 @@ pub type ModbusDe = gpio::PA1<Output<PushPull>>;
 pub mod reserved {
     use stm32f4xx_hal::gpio;
 
-    /// USB OTG FS D− (AF10): USB HID.
-    pub type UsbDm = gpio::PA11;
-    /// USB OTG FS D+ (AF10): USB HID.
-    pub type UsbDp = gpio::PA12;
     /// STEP pass-through to the chips' STCK inputs.
     pub type ChainStck = gpio::PB1;
 }
@@ -124,8 +128,8 @@ pub const PIN_TABLE: &[(&str, &str, &str)] = &[
     ("MODBUS_TX",    "PA2",  "USART2 TX (AF7), Modbus RTU, to DI of the RS-485 transceiver"),
     ("MODBUS_RX",    "PA3",  "USART2 RX (AF7), pull-up, from RO of the RS-485 transceiver"),
     ("MODBUS_DE",    "PA1",  "GPIO push-pull, RS-485 DE (and RE-), high = transmit"),
-    ("USB_DM",       "PA11", "reserved: USB OTG FS D- (AF10), USB HID"),
-    ("USB_DP",       "PA12", "reserved: USB OTG FS D+ (AF10), USB HID"),
+    ("USB_DM",       "PA11", "USB OTG FS D- (AF10), PoStep60 USB HID"),
+    ("USB_DP",       "PA12", "USB OTG FS D+ (AF10), PoStep60 USB HID"),
     ("CHAIN_STCK",   "PB1",  "reserved: GPIO, STEP pass-through to the chips' STCK"),
 ];
 
@@ -149,13 +153,16 @@ pub struct Pins {
     pub modbus_tx: ModbusTx,
     pub modbus_rx: ModbusRx,
     pub modbus_de: ModbusDe,
+    pub usb_dm: UsbDm,
+    pub usb_dp: UsbDp,
 }
 
 /// Configure every pin in use from the split GPIO ports. Safe states first:
 /// CS high (deselected), STBY low (chips held in reset until the caller
 /// releases them), LED off, RS-485 DE low (receive); the I2C pins are
 /// released (open drain, and the I2C peripheral stays off until its driver
-/// starts it). Reserved pins stay in their reset mode.
+/// starts it); the USB pins go to OTG FS's AF10, where the core's PHY keeps
+/// them released until USB starts. Reserved pins stay in their reset mode.
 pub fn configure(
     gpioa: gpio::gpioa::Parts,
     gpiob: gpio::gpiob::Parts,
@@ -181,6 +188,9 @@ pub fn configure(
         modbus_tx,
         modbus_rx,
         modbus_de,
+        // Full speed, 12 Mbit/s: the fastest slew.
+        usb_dm: gpioa.pa11.into_alternate().speed(Speed::VeryHigh),
+        usb_dp: gpioa.pa12.into_alternate().speed(Speed::VeryHigh),
     }
 }
 

@@ -25,3 +25,11 @@ pub mod board;
 pub mod drivers;
 pub mod failsafe;
 pub mod platform;
+
+/// The firmware's build id (diagnostics register 0x0344–45, boot log): the
+/// first 32 bits of the git commit it was built from, 0 when it was not
+/// built from a git checkout (`build.rs`).
+pub const BUILD_ID: u32 = match u32::from_str_radix(env!("STEPBRIDGE_BUILD_ID"), 16) {
+    Ok(id) => id,
+    Err(_) => 0,
+};

@@ -6,12 +6,13 @@
 //!
 //! | task | runs on | priority | owns | shares |
 //! |---|---|---|---|---|
-//! | `init` | reset | – | RCC, SysTick, IWDG, GPIO; starts everything below | – |
+//! | `init` | reset | – | reset handoff, RCC, SysTick, IWDG, GPIO; starts everything below | – |
 //! | `modbus_uart` | USART2 | 4 | – | `rs485` (USART2, DE), `modbus` |
 //! | `control_tick` | TIM2, 1 kHz | 3 | `tick` (TIM2), `watchdog` (IWDG), LED, STBY | `bridge` (chain: SPI1 + CS) |
 //! | `modbus_server` | async | 2 | – | `bridge`, `rs485`, `modbus`, `i2c` |
 //! | `i2c_event`, `i2c_error` | I2C1_EV, I2C1_ER | 2 | – | `bridge`, `i2c` (I2C1), `i2c_proto` |
 //! | `housekeeping` | async, 10 Hz | 1 | `analog` (ADC1), `store` (FLASH) | `bridge`, `rs485` |
+//! | `usb_hid` | OTG_FS, and pended by every control tick | 1 | `usb` (OTG FS) | `bridge` |
 //!
 //! * `modbus_uart` stamps each received byte with the monotonic's µs and
 //!   hands it to the Modbus RTU server; the response leaves by TXE/TC
@@ -19,18 +20,31 @@
 //!   response never pauses between characters (> t1.5 would break it).
 //! * `control_tick`: `bridge.tick(now)` — one chain batch for every axis —,
 //!   STBY low for good once the bridge declares the chain dead, LED,
-//!   watchdog feed, and the 10 Hz spawn of `housekeeping`.
+//!   watchdog feed, the 10 Hz spawn of `housekeeping`, a pend of `usb_hid`,
+//!   and its own duration (DWT; the monotonic under QEMU) into the bridge's
+//!   diagnostics.
 //! * `modbus_server` sleeps until the server's t3.5 deadline, executes the
 //!   request with the bridge locked and starts the response; a changed
 //!   address base goes on to the I2C slave. `i2c_*` move PoStep60 I2C bytes.
 //! * `housekeeping`: ADC samples, a pending settings save, a requested
 //!   system reset — the last two only while no Modbus response goes out.
+//!   The reset's target (application, boot mode, ROM DFU) goes into the
+//!   `.uninit` handoff word first; `init` reads it before anything else:
+//!   boot mode starts the bridge in it, ROM DFU jumps to ST's bootloader
+//!   before the clocks are touched.
+//! * `usb_hid` polls usb-device, hands OUT reports to the bridge and puts
+//!   its next IN report into the endpoint; a bus reset ends the stream.
+//!   Lowest priority: USB has the loosest timing of the buses (the OTG core
+//!   NAKs until the task has served it; the host polls every 10 ms). Its
+//!   interrupts come from the OTG core; the 0xA0 stream is due by time, so
+//!   every control tick also pends it (≤ 1 ms late on the 10 ms cadence).
 //!
 //! A panic or HardFault drives STBY low first (`firmware::failsafe`); the
 //! watchdog resets the MCU if `control_tick` stops. Under QEMU (feature
 //! `qemu`) the same tasks run on `platform/qemu.rs`'s stand-ins, where the
-//! I2C tasks never fire. On any target but `thumbv7em-none-eabihf` this file
-//! is an empty `main`.
+//! I2C tasks never fire and USB is never started (`usb_hid` returns at
+//! once). On any target but `thumbv7em-none-eabihf` this file is an empty
+//! `main`.
 #![cfg_attr(target_os = "none", no_std)]
 #![cfg_attr(target_os = "none", no_main)]
 #![deny(unsafe_code)]
@@ -44,24 +58,29 @@ fn main() {
 #[cfg(target_os = "none")]
 #[rtic::app(device = stm32f4xx_hal::pac, dispatchers = [UART4, UART5, USART6])]
 mod app {
-    use bridge_logic::bridge::{boot_settings, Bridge, SettingsSource};
+    use bridge_logic::bridge::{boot_settings, Bridge, ResetCause, ResetTarget, SettingsSource};
     use bridge_logic::persist::{Store, StoreError, MAX_IMAGE};
     use bridge_logic::postep60::settings::{Settings, IMAGE_LEN};
     use bridge_logic::postep60::Board;
     use bridge_logic::transport::i2c::I2cSlave;
     use bridge_logic::transport::modbus::{RtuServer, Timing};
+    use bridge_logic::transport::usb::REPORT_LEN;
     use defmt::{debug, error, info, warn};
     use firmware::board;
     use firmware::drivers::clock::{self, Mono};
     use firmware::drivers::i2c_slave::LockedTarget;
+    use firmware::drivers::mcu;
     use firmware::drivers::rs485::{Rs485, Rx};
+    use firmware::drivers::usb::Link;
     use firmware::platform::{
-        self, Analog, ChainDriver, I2cSlaveDriver, SettingsFlash, TickTimer, Watchdog,
+        self, Analog, ChainDriver, I2cSlaveDriver, SettingsFlash, Stopwatch, TickTimer, Usb,
+        Watchdog,
     };
     use rtic::Mutex;
     use rtic_monotonics::Timebase;
     use rtic_sync::signal::{SignalReader, SignalWriter};
     use stm32f4xx_hal::gpio::GpioExt;
+    use stm32f4xx_hal::pac::Interrupt;
 
     /// Control-loop rate.
     const TICK_HZ: u32 = 1_000;
@@ -112,23 +131,36 @@ mod app {
         bytes_in: SignalWriter<'static, ()>,
         /// The Modbus server task's end of that signal.
         bytes_seen: SignalReader<'static, ()>,
+        /// OTG FS as the PoStep60 HID device (None: not started, QEMU).
+        usb: Option<Usb>,
     }
 
     #[init]
     fn init(cx: init::Context) -> (Shared, Local) {
         let dp = cx.device;
+        let mut core = cx.core;
+        // Before anything else: what the last run restarted into. ST's ROM
+        // bootloader wants the MCU as a reset leaves it (clocks, IWDG).
+        let handoff = mcu::take_handoff();
+        if handoff == Some(ResetTarget::RomDfu) {
+            platform::rom_bootloader(&dp.RCC, &dp.SYSCFG);
+        }
+        let reset_flags = platform::reset_flags(&dp.RCC);
         let reset_cause = platform::reset_cause(&dp.RCC);
         let mut rcc = platform::freeze_clocks(dp.RCC);
         let sysclk = rcc.clocks.sysclk().raw();
         info!(
-            "stepbridge on {=str}: SYSCLK {=u32} Hz, reset cause {}",
+            "stepbridge on {=str}: build {=u32:08x}, SYSCLK {=u32} Hz, reset cause {}, handoff {}",
             platform::NAME,
+            firmware::BUILD_ID,
             sysclk,
-            reset_cause
+            reset_cause,
+            handoff
         );
         // `start` asserts a whole number of cycles per tick: 168 MHz is.
         let systick_hz = platform::systick_hz(&rcc);
-        Mono::start(cx.core.SYST, systick_hz - systick_hz % clock::TICK_HZ);
+        Mono::start(core.SYST, systick_hz - systick_hz % clock::TICK_HZ);
+        platform::enable_stopwatch(&mut core.DCB, &mut core.DWT);
 
         // From here on a stalled control tick resets the MCU.
         let watchdog = Watchdog::start(dp.IWDG, &dp.DBGMCU);
@@ -158,6 +190,21 @@ mod app {
             None => info!("chain: {=usize} powerSTEP01", bridge.axes()),
             Some(e) => error!("chain: detection failed ({}), running with 0 axes", e),
         }
+        bridge.set_reset_cause(ResetCause::from_rcc_csr(reset_flags));
+        bridge.set_build_id(firmware::BUILD_ID);
+        let uid = platform::unique_id();
+        bridge.set_unique_id(uid);
+        if handoff == Some(ResetTarget::BootMode) {
+            bridge.enter_boot_mode();
+            warn!("boot mode (USB 0x02): every axis asleep, USB answers; 0x02 restarts the application");
+        }
+        // Connects at once; the host's traffic waits for the end of `init`.
+        let usb = platform::start_usb(
+            (dp.OTG_FS_GLOBAL, dp.OTG_FS_DEVICE, dp.OTG_FS_PWRCLK),
+            (pins.usb_dm, pins.usb_dp),
+            &rcc,
+            uid,
+        );
 
         let (primary, secondary) = bridge.i2c_addresses();
         let i2c = I2cSlaveDriver::new(
@@ -209,6 +256,7 @@ mod app {
                 store,
                 bytes_in,
                 bytes_seen,
+                usb,
             },
         )
     }
@@ -252,9 +300,11 @@ mod app {
     }
 
     /// The control loop: one bridge tick (one chain batch for every axis),
-    /// then STBY, LED and the slow jobs at 10 Hz.
+    /// then STBY, LED, the slow jobs at 10 Hz and a USB poll; the tick's
+    /// duration goes to the bridge's diagnostics.
     #[task(binds = TIM2, priority = 3, shared = [bridge], local = [tick, now_ms, led, stby, watchdog])]
     fn control_tick(mut cx: control_tick::Context) {
+        let stopwatch = Stopwatch::start();
         cx.local.tick.acknowledge();
         cx.local.watchdog.feed();
         *cx.local.now_ms += 1;
@@ -278,6 +328,14 @@ mod app {
             // Still busy with the previous round: skip this one.
             let _ = housekeeping::spawn();
         }
+        // The USB task, at the lowest priority: the 0xA0 stream's reports
+        // are due by time, not by an OTG interrupt.
+        rtic::pend(Interrupt::OTG_FS);
+        let duration_us = stopwatch.elapsed_us();
+        // Free: this task's priority is the bridge's ceiling.
+        cx.shared
+            .bridge
+            .lock(|b| b.tick_timing(duration_us, TICK_US));
     }
 
     /// USART2: received bytes, stamped, into the Modbus server; the
@@ -325,6 +383,9 @@ mod app {
                         now.saturating_sub(deadline)
                     );
                 }
+                // The diagnostics' Modbus counters (0x0300..).
+                let stats = server.stats();
+                bridge.lock(|b| b.set_modbus_stats(stats));
                 rs485.errors()
             });
             cx.shared.i2c.lock(|i2c| apply_address_change(bridge, i2c));
@@ -394,8 +455,41 @@ mod app {
         }
         if let Some(target) = reset {
             info!("system reset requested ({})", target);
+            // `init` of the next run reads it (ROM DFU, boot mode).
+            mcu::store_handoff(target);
             cortex_m::peripheral::SCB::sys_reset();
         }
+    }
+
+    /// USB OTG FS (its interrupt, and pended by every control tick): poll
+    /// the stack, OUT reports into the bridge, the bridge's next IN report
+    /// into the endpoint. The bridge's USB entry points get the monotonic's
+    /// ms (they only compare their own times: the stream's due time, an
+    /// extension read's timeout). Each lock covers one report.
+    #[task(binds = OTG_FS, priority = 1, shared = [bridge], local = [usb])]
+    fn usb_hid(mut cx: usb_hid::Context) {
+        let Some(usb) = cx.local.usb.as_mut() else {
+            return;
+        };
+        let now_ms = clock::now_us() / 1_000;
+        let bridge = &mut cx.shared.bridge;
+        if usb.poll() == Link::Lost {
+            // Bus reset, suspend, deconfigured: the stream and unread
+            // responses go.
+            bridge.lock(|b| b.on_usb_reset());
+        }
+        let mut report = [0u8; REPORT_LEN];
+        while let Some(n) = usb.read_report(&mut report) {
+            let bytes = report.get(..n).unwrap_or(&[]);
+            bridge.lock(|b| b.on_usb_report(bytes, now_ms));
+        }
+        bridge.lock(|b| {
+            if let Some(r) = b.usb_next(now_ms).copied() {
+                if usb.write_report(&r.0) {
+                    b.usb_sent();
+                }
+            }
+        });
     }
 
     /// Busy-wait `ms` milliseconds at `sysclk_hz` (init only).

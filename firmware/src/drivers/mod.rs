@@ -4,12 +4,15 @@
 //! each block with a `// SAFETY:` comment.
 //!
 //! The QEMU platform does not use every driver (QEMU models no I2C, ADC
-//! calibration or flash controller): all of them are still built in both
-//! configurations, so a QEMU build checks that they compile.
+//! calibration, flash controller, USB, unique id or ROM bootloader): all of
+//! them are still built in both configurations, so a QEMU build checks that
+//! they compile.
 
 pub mod analog;
 pub mod chain_spi;
 pub mod clock;
 pub mod flash;
 pub mod i2c_slave;
+pub mod mcu;
 pub mod rs485;
+pub mod usb;

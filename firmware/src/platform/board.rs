@@ -25,16 +25,28 @@ pub use crate::drivers::i2c_slave::I2cSlaveDriver;
 /// Which platform this image runs on (logged at boot).
 pub const NAME: &str = "board";
 
-/// HSE crystal through the main PLL to 168 MHz (APB1 42 MHz, APB2 84 MHz).
+/// HSE crystal through the main PLL to 168 MHz (APB1 42 MHz, APB2 84 MHz)
+/// and the 48 MHz PLL48CLK of USB OTG FS: M 4, N 168, P 2, Q 7 — the same
+/// PLL the HAL picks for 168 MHz alone, so every other clock is unchanged
+/// (`freeze` asserts the 48 MHz).
 pub fn freeze_clocks(rcc: pac::RCC) -> Rcc {
     rcc.freeze(
-        Config::hse(Hertz::from_raw(board::HSE_HZ)).sysclk(Hertz::from_raw(board::SYSCLK_HZ)),
+        Config::hse(Hertz::from_raw(board::HSE_HZ))
+            .sysclk(Hertz::from_raw(board::SYSCLK_HZ))
+            .require_pll48clk(),
     )
 }
 
 /// The SysTick input clock: the processor clock (SYSCLK).
 pub fn systick_hz(rcc: &Rcc) -> u32 {
     rcc.clocks.sysclk().raw()
+}
+
+/// RCC_CSR as the reset left it (its reset flags, for
+/// `bridge_logic::bridge::ResetCause::from_rcc_csr`). Call it before
+/// [`reset_cause`], which clears them.
+pub fn reset_flags(rcc: &pac::RCC) -> u32 {
+    rcc.csr().read().bits()
 }
 
 /// Why the MCU started, from RCC_CSR; the flags are cleared (RMVF) so the
@@ -163,5 +175,62 @@ unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
     crate::failsafe::chips_off();
     loop {
         core::sync::atomic::compiler_fence(core::sync::atomic::Ordering::SeqCst);
+    }
+}
+
+/// The PoStep60 USB HID device on OTG FS (`drivers::usb`).
+pub type Usb = crate::drivers::usb::UsbPort;
+
+/// Start USB (serial number from `uid`); None, and logged, if it was
+/// refused. Needs the PLL48CLK of [`freeze_clocks`].
+pub fn start_usb(
+    otg: board::UsbOtg,
+    pins: (board::UsbDm, board::UsbDp),
+    rcc: &Rcc,
+    uid: [u32; 3],
+) -> Option<Usb> {
+    let usb = stm32f4xx_hal::otg_fs::USB::new(otg, pins, &rcc.clocks);
+    match Usb::start(usb, uid) {
+        Ok(port) => {
+            defmt::info!("USB: OTG FS, PoStep60 HID, waiting for a host");
+            Some(port)
+        }
+        Err(e) => {
+            defmt::error!("USB: not started ({})", e);
+            None
+        }
+    }
+}
+
+/// The MCU's 96-bit unique id (0x1FFF_7A10).
+pub fn unique_id() -> [u32; 3] {
+    crate::drivers::mcu::unique_id()
+}
+
+/// Jump into ST's ROM DFU bootloader (`drivers::mcu`): never returns. Call
+/// it first thing in `init`, before clocks and peripherals are set up.
+pub fn rom_bootloader(rcc: &pac::RCC, syscfg: &pac::SYSCFG) -> ! {
+    crate::drivers::mcu::jump_to_rom_bootloader(rcc, syscfg)
+}
+
+/// Start the DWT cycle counter that [`Stopwatch`] reads.
+pub fn enable_stopwatch(dcb: &mut cortex_m::peripheral::DCB, dwt: &mut cortex_m::peripheral::DWT) {
+    dcb.enable_trace();
+    dwt.enable_cycle_counter();
+}
+
+/// Times a stretch of code (the control tick) on the DWT cycle counter at
+/// SYSCLK: 6 ns resolution, spans below 25 s.
+pub struct Stopwatch(u32);
+
+impl Stopwatch {
+    pub fn start() -> Stopwatch {
+        Stopwatch(cortex_m::peripheral::DWT::cycle_count())
+    }
+
+    /// µs since [`Stopwatch::start`].
+    pub fn elapsed_us(&self) -> u32 {
+        cortex_m::peripheral::DWT::cycle_count().wrapping_sub(self.0)
+            / (board::SYSCLK_HZ / 1_000_000)
     }
 }

@@ -9,9 +9,9 @@
 //!
 //! | name | board | QEMU | why QEMU differs |
 //! |---|---|---|---|
-//! | `freeze_clocks` | 8 MHz HSE, PLL to 168 MHz | 16 MHz HSI, no PLL | RCC ready bits read 0: HSE/PLL start-up hangs |
+//! | `freeze_clocks` | 8 MHz HSE, PLL to 168 MHz and 48 MHz PLL48CLK | 16 MHz HSI, no PLL | RCC ready bits read 0: HSE/PLL start-up hangs |
 //! | `systick_hz` | SYSCLK | 168 MHz | QEMU's SysTick counts at 168 MHz whatever the clocks say |
-//! | `reset_cause` | RCC_CSR flags (then cleared) | [`ResetCause::Unknown`] | RCC not modelled |
+//! | `reset_flags`, `reset_cause` | RCC_CSR flags (then cleared) | 0, [`ResetCause::Unknown`] | RCC not modelled |
 //! | `Watchdog` | IWDG, 6.5 s nominal | does nothing | IWDG not modelled |
 //! | `TickTimer` | TIM2 update at the control rate (HAL) | TIM2 programmed for QEMU's timer model | QEMU's TIM2 ignores the prescaler |
 //! | `ChainDriver` | SPI1 + CS (`drivers::chain_spi`) | 4 simulated powerSTEP01s that live on the monotonic's time | no chips attached |
@@ -19,11 +19,15 @@
 //! | `SettingsFlash` | sectors 10 and 11 (`drivers::flash`) | RAM copy of a host file, written through by semihosting | flash controller not modelled |
 //! | `I2cSlaveDriver` | I2C1 slave (`drivers::i2c_slave`) | takes address changes; I2C1 stays off | I2C transfers hang |
 //! | `HardFault` handler | STBY low, wait for the watchdog | exit QEMU with status 1 | a crash must end a run |
+//! | `Usb`, `start_usb` | OTG FS, PoStep60 HID (`drivers::usb`) | never started (`Usb` has no value); logs "USB: not modelled by QEMU, not started" | OTG FS unimplemented: its core reset waits for ever |
+//! | `unique_id` | the 96 bits at 0x1FFF_7A10 | a fixed id (logged) | reading 0x1FFF_7A10 HardFaults |
+//! | `rom_bootloader` | jump to ST's ROM DFU bootloader (`drivers::mcu`) | logs, returns: normal start | no system memory |
+//! | `Stopwatch`, `enable_stopwatch` (control-tick timing) | DWT cycle counter | the monotonic's µs | QEMU's cycle counter reads 0 |
 //! | `measure_us`, `SYSTICK_LAG_MAX_PERCENT` (on-target tests) | DWT cycle counter; SysTick exact | host clock (semihosting); SysTick up to 50 % slow | QEMU's cycle counter reads 0; its SysTick re-arms late |
 //! | defmt transport | RTT (probe) | semihosting stdout | no probe |
 //!
-//! USB (when it comes) belongs here too: OTG FS on the board, a stand-in
-//! under QEMU, whose USB OTG init hangs.
+//! The reset handoff word (`drivers::mcu`, `.uninit` RAM) is the same on
+//! both.
 
 #[cfg_attr(feature = "qemu", path = "qemu.rs")]
 #[cfg_attr(not(feature = "qemu"), path = "board.rs")]

@@ -41,6 +41,9 @@ use crate::board::{
     SenseAdc, SupplySense,
 };
 use crate::drivers::clock;
+use crate::drivers::usb::Link;
+use bridge_logic::transport::usb::REPORT_LEN;
+use usb_device::device::UsbDeviceState;
 
 // The settings flash's host-file stand-in.
 #[path = "qemu_flash.rs"]
@@ -67,6 +70,11 @@ pub fn freeze_clocks(rcc: pac::RCC) -> Rcc {
 /// [`SYSTICK_HZ`], whatever `rcc` says.
 pub fn systick_hz(_rcc: &Rcc) -> u32 {
     SYSTICK_HZ
+}
+
+/// QEMU models no RCC_CSR: no reset flag (a normal start).
+pub fn reset_flags(_rcc: &pac::RCC) -> u32 {
+    0
 }
 
 /// QEMU models no RCC_CSR: always [`ResetCause::Unknown`].
@@ -244,4 +252,82 @@ unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
     // a defmt frame on stdout.
     semihosting::eprintln!("stepbridge: HardFault, exiting QEMU");
     semihosting::process::exit(1)
+}
+
+/// USB stand-in: QEMU 7.2 maps OTG FS as an unimplemented device and the
+/// allocator's core reset would wait for ever, so USB is never started and
+/// no `Usb` exists (the app's USB task returns at once when pended).
+pub enum Usb {}
+
+impl Usb {
+    pub fn poll(&mut self) -> Link {
+        match *self {}
+    }
+
+    pub fn read_report(&mut self, _buf: &mut [u8; REPORT_LEN]) -> Option<usize> {
+        match *self {}
+    }
+
+    pub fn write_report(&mut self, _report: &[u8; REPORT_LEN]) -> bool {
+        match *self {}
+    }
+
+    pub fn state(&self) -> UsbDeviceState {
+        match *self {}
+    }
+}
+
+/// Never starts USB (see [`Usb`]); says so in the boot log.
+pub fn start_usb(
+    _otg: board::UsbOtg,
+    _pins: (board::UsbDm, board::UsbDp),
+    _rcc: &Rcc,
+    _uid: [u32; 3],
+) -> Option<Usb> {
+    defmt::info!("USB: not modelled by QEMU, not started");
+    None
+}
+
+/// The unique id QEMU's image uses: reading 0x1FFF_7A10 HardFaults there.
+pub const UNIQUE_ID: [u32; 3] = [0x554D_4551, 0x0000_0000, 0x0000_0001];
+
+/// [`UNIQUE_ID`], a fixed stand-in (logged).
+pub fn unique_id() -> [u32; 3] {
+    let [a, b, c] = UNIQUE_ID;
+    defmt::info!(
+        "unique id: QEMU has none, using {=u32:08x}-{=u32:08x}-{=u32:08x}",
+        a,
+        b,
+        c
+    );
+    UNIQUE_ID
+}
+
+/// QEMU has no system memory and no ROM bootloader: logs and returns, and
+/// the image starts normally.
+pub fn rom_bootloader(_rcc: &pac::RCC, _syscfg: &pac::SYSCFG) {
+    defmt::warn!("reset handoff: ROM DFU bootloader requested, QEMU has none: starting normally");
+}
+
+/// Nothing to start: [`Stopwatch`] uses the monotonic (QEMU's DWT cycle
+/// counter reads 0).
+pub fn enable_stopwatch(
+    _dcb: &mut cortex_m::peripheral::DCB,
+    _dwt: &mut cortex_m::peripheral::DWT,
+) {
+}
+
+/// Times a stretch of code (the control tick) on the monotonic's µs
+/// (`clock::now_us`): QEMU's DWT cycle counter reads 0.
+pub struct Stopwatch(u64);
+
+impl Stopwatch {
+    pub fn start() -> Stopwatch {
+        Stopwatch(clock::now_us())
+    }
+
+    /// µs since [`Stopwatch::start`].
+    pub fn elapsed_us(&self) -> u32 {
+        u32::try_from(clock::now_us().saturating_sub(self.0)).unwrap_or(u32::MAX)
+    }
 }

@@ -22,6 +22,7 @@ pub struct Target {
     pub iwdg: pac::IWDG,
     pub dbgmcu: pac::DBGMCU,
     pub tim2: pac::TIM2,
+    pub usb_otg: board::UsbOtg,
 }
 
 /// Clocks (platform), DWT cycle counter, SysTick monotonic, pins (board).
@@ -63,6 +64,7 @@ pub fn setup() -> Target {
         iwdg: dp.IWDG,
         dbgmcu: dp.DBGMCU,
         tim2: dp.TIM2,
+        usb_otg: (dp.OTG_FS_GLOBAL, dp.OTG_FS_DEVICE, dp.OTG_FS_PWRCLK),
     }
 }
 

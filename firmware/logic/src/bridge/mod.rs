@@ -197,6 +197,7 @@ mod tests {
 }
 
 pub mod ext;
+pub mod handoff;
 mod i2c;
 mod io;
 mod modbus;
