@@ -82,9 +82,9 @@ mod app {
     use stm32f4xx_hal::gpio::GpioExt;
     use stm32f4xx_hal::pac::Interrupt;
 
-    /// Control-loop rate.
-    const TICK_HZ: u32 = 1_000;
-    const TICK_US: u32 = 1_000_000 / TICK_HZ;
+    /// Control-loop rate: the build setting `STEPBRIDGE_TICK_HZ` (default
+    /// 1 kHz; `bridge_logic::rate`).
+    use bridge_logic::rate::{TICK_HZ, TICK_US};
     /// STBY/RESET low time at power-up (datasheet minimum is well below).
     const RESET_PULSE_MS: u32 = 1;
     /// Wait after releasing STBY/RESET before the first SPI byte.
@@ -114,8 +114,8 @@ mod app {
     struct Local {
         /// TIM2 as the control-loop timer (update interrupt).
         tick: TickTimer,
-        /// Milliseconds since boot (the bridge's clock).
-        now_ms: u64,
+        /// Control ticks since boot (the bridge's ms clock is derived from it).
+        ticks: u64,
         /// Status LED (pattern decided by the bridge).
         led: board::StatusLed,
         /// Chain STBY/RESET, released (high) by `init`: driven low and given
@@ -248,7 +248,7 @@ mod app {
             },
             Local {
                 tick,
-                now_ms: 0,
+                ticks: 0,
                 led: pins.led,
                 stby: Some(stby),
                 watchdog,
@@ -302,13 +302,16 @@ mod app {
     /// The control loop: one bridge tick (one chain batch for every axis),
     /// then STBY, LED, the slow jobs at 10 Hz and a USB poll; the tick's
     /// duration goes to the bridge's diagnostics.
-    #[task(binds = TIM2, priority = 3, shared = [bridge], local = [tick, now_ms, led, stby, watchdog])]
+    #[task(binds = TIM2, priority = 3, shared = [bridge], local = [tick, ticks, led, stby, watchdog])]
     fn control_tick(mut cx: control_tick::Context) {
         let stopwatch = Stopwatch::start();
         cx.local.tick.acknowledge();
         cx.local.watchdog.feed();
-        *cx.local.now_ms += 1;
-        let now = *cx.local.now_ms;
+        // The bridge's clock is milliseconds: above 1 kHz several ticks
+        // share one.
+        *cx.local.ticks += 1;
+        let ticks = *cx.local.ticks;
+        let now = ticks * u64::from(TICK_US) / 1000;
         let (on, dead) = cx.shared.bridge.lock(|b| {
             b.tick(now);
             (b.led_on(now), b.chain_dead())
@@ -324,7 +327,7 @@ mod app {
             }
         }
         cx.local.led.set_state(on.into());
-        if now % HOUSEKEEPING_TICKS == 0 {
+        if ticks % HOUSEKEEPING_TICKS == 0 {
             // Still busy with the previous round: skip this one.
             let _ = housekeeping::spawn();
         }

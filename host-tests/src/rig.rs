@@ -100,8 +100,10 @@ impl Rig {
         }
     }
 
-    /// Tick until every axis is settled (panics after `cap` ticks).
-    pub fn run_until_settled(&mut self, cap: u32) -> u32 {
+    /// Tick until every axis is settled (panics after `cap_ms` ms of ticks,
+    /// whatever the tick period); returns the ticks it took.
+    pub fn run_until_settled(&mut self, cap_ms: u32) -> u32 {
+        let cap = cap_ms.saturating_mul(1000) / self.clock.tick_us().max(1);
         let mut n = 0;
         while !self.group.is_settled() {
             self.tick();

@@ -10,7 +10,8 @@ use bridge_logic::powerstep::{DriveMode, StepSel};
 use bridge_logic::sim::{Fault, SimClock, SimControl};
 use host_tests::rig::Rig;
 
-const TICK_US: u32 = 1000;
+/// The build setting `STEPBRIDGE_TICK_HZ` (CI runs this file at 1, 2 and 5 kHz).
+const TICK_US: u32 = bridge_logic::rate::TICK_US;
 
 /// xorshift64*: deterministic, seedable, no dependency.
 struct Rng(u64);

@@ -18,7 +18,7 @@ use bridge_logic::postep60::{Board, Query, Request, Settings, Value};
 use bridge_logic::powerstep::registers::{sign_extend_22, wrap_22, Register};
 use bridge_logic::powerstep::Command;
 use bridge_logic::sim::{Fault, SimChain, SimClock};
-use host_tests::sim_bridge::{chip, chip_mut, new_bridge, TICK_US};
+use host_tests::sim_bridge::{chip, chip_mut, new_bridge_at, TICK_US};
 
 const BOARD: Board = Board::REFERENCE;
 /// Microsteps per full step on the reference board's chips (1/128).
@@ -107,9 +107,14 @@ struct Truth {
 
 impl Truth {
     fn new(n: usize, settings: Settings) -> Truth {
+        Truth::at(n, settings, TICK_US)
+    }
+
+    /// Ticked every `tick_us` µs (a divisor of 1000).
+    fn at(n: usize, settings: Settings, tick_us: u32) -> Truth {
         let mut t = Truth {
-            bridge: new_bridge(n, settings, BOARD),
-            clock: SimClock::new(TICK_US),
+            bridge: new_bridge_at(n, settings, BOARD, tick_us),
+            clock: SimClock::new(tick_us),
             expect: vec![
                 Expect::At {
                     target: 0,
@@ -134,7 +139,7 @@ impl Truth {
     }
 
     fn run(&mut self, ms: u64) {
-        for _ in 0..ms {
+        for _ in 0..ms * 1000 / u64::from(self.clock.tick_us()) {
             self.clock.tick(&mut self.bridge);
             self.observe();
         }
@@ -446,22 +451,27 @@ fn sequence(t: &mut Truth, rng: &mut Rng, seq: usize, counts: &mut [u64; 6]) {
 }
 
 fn random_run(n: usize, sequences: usize, seed: u64) -> Truth {
+    random_run_at(n, sequences, seed, TICK_US)
+}
+
+fn random_run_at(n: usize, sequences: usize, seed: u64, tick_us: u32) -> Truth {
     let mut settings = Settings::FACTORY;
     for a in settings.axes.iter_mut() {
         a.max_speed = 16_000;
         a.acc = 60_000;
         a.dec = 60_000;
     }
-    let mut t = Truth::new(n, settings);
+    let mut t = Truth::at(n, settings, tick_us);
     let mut rng = Rng(seed);
     let mut counts = [0u64; 6];
     for seq in 0..sequences {
         sequence(&mut t, &mut rng, seq, &mut counts);
     }
     println!(
-        "{n} chips, {sequences} sequences, {} moves, {} ms: lost {}, max overshoot {:.3} full steps, \
+        "{n} chips at {} Hz, {sequences} sequences, {} moves, {} ms: lost {}, max overshoot {:.3} full steps, \
          max following error {:.3} full steps; limit changes {}, stop+move {}, zero+move {}, \
          step-mode changes {}, chip resets {}, retargets {}",
+        1_000_000 / tick_us,
         t.moves,
         t.clock.now_ms(),
         t.lost.len(),
@@ -518,6 +528,24 @@ fn every_accepted_move_arrives_on_four_chips() {
 #[test]
 fn every_accepted_move_arrives_on_eight_chips() {
     let t = random_run(8, 120, 0x0BAD_C0DE_7777);
+    assert_truth(&t);
+}
+
+#[test]
+fn every_accepted_move_arrives_at_a_2_khz_tick() {
+    let t = random_run_at(4, 120, 0x2222_0000_2000, 500);
+    assert_truth(&t);
+}
+
+#[test]
+fn every_accepted_move_arrives_at_a_5_khz_tick() {
+    let t = random_run_at(4, 80, 0x5555_0000_5000, 200);
+    assert_truth(&t);
+}
+
+#[test]
+fn every_accepted_move_arrives_on_eight_chips_at_a_5_khz_tick() {
+    let t = random_run_at(8, 120, 0x0BAD_C0DE_7777, 200);
     assert_truth(&t);
 }
 

@@ -11,6 +11,7 @@
 //! * [`transport`] — bytes ↔ PoStep60 commands for each bus (I2C, Modbus
 //!   RTU); knows no hardware and not the bridge.
 //! * [`persist`] — the power-cut-safe settings store over any NOR flash.
+//! * [`rate`] — the control-tick rate (build setting `STEPBRIDGE_TICK_HZ`).
 //! * [`bridge`] — the object the firmware owns: `tick(now)` for the control
 //!   loop, requests and queries for the buses, and the adapters that connect
 //!   each transport to the device models.
@@ -27,6 +28,7 @@ pub mod motion;
 pub mod persist;
 pub mod postep60;
 pub mod powerstep;
+pub mod rate;
 pub mod transport;
 
 // The simulator is built for this crate's own tests and, with the `sim`

@@ -20,22 +20,8 @@ use bridge_logic::sim::SimChain;
 use core::hint::black_box;
 use cortex_m_rt::entry;
 
-/// Control period, µs (the firmware's build setting; TICK_US at build time).
-const TICK_US: u32 = match option_env!("TICK_US") {
-    Some(s) => parse_u32(s),
-    None => 1000,
-};
-
-const fn parse_u32(s: &str) -> u32 {
-    let b = s.as_bytes();
-    let mut i = 0;
-    let mut v = 0u32;
-    while i < b.len() {
-        v = v * 10 + (b[i] - b'0') as u32;
-        i += 1;
-    }
-    v
-}
+/// Control period, µs: the firmware's build setting `STEPBRIDGE_TICK_HZ`.
+const TICK_US: u32 = bridge_logic::rate::TICK_US;
 
 /// Measured ticks of the 8-axis group (the script divides by it).
 const N: u32 = 20_000;

@@ -76,6 +76,17 @@ use crate::powerstep::status::ThermalStatus;
 /// The following error is corrected over this many ticks.
 pub const CORRECTION_TICKS: i64 = 8;
 
+/// The correction period in ticks for a tick of `tick_us`: 8 ms (8 ticks at
+/// 1 kHz, 40 at 5 kHz), so the correction is as gentle at any tick rate.
+pub const fn correction_ticks(tick_us: u32) -> i64 {
+    let t = CORRECTION_TICKS * 1000 / if tick_us == 0 { 1 } else { tick_us as i64 };
+    if t < 1 {
+        1
+    } else {
+        t
+    }
+}
+
 /// Static description of one axis.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -361,7 +372,11 @@ impl Axis {
         let mut axis = Axis {
             cfg,
             speed_div: units::speed_divisor(cfg.tick_us, cfg.logical_shift),
-            corr_div: units::correction_divisor(cfg.tick_us, cfg.step, CORRECTION_TICKS),
+            corr_div: units::correction_divisor(
+                cfg.tick_us,
+                cfg.step,
+                correction_ticks(cfg.tick_us),
+            ),
             profile: Profile::new(cfg.tick_us, limits),
             state: AxisState::Setup(phase::HIZ),
             limits: LimitState {
