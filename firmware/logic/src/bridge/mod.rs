@@ -32,7 +32,7 @@ use crate::postep60::settings::{Serial, Watchdog, WatchdogAction, IMAGE_LEN, WAT
 use crate::postep60::{
     Board, CommandError, Device, Effect, Inputs, Query, Request, Settings, Value,
 };
-use crate::powerstep::chain::{Chain, ChainBus, ChainError, MAX_DEVICES};
+use crate::powerstep::chain::{Chain, ChainBus, ChainError, Frames, Plan, MAX_DEVICES};
 use crate::transport::i2c::I2cCommand;
 use crate::transport::modbus::Stats as ModbusStats;
 
@@ -555,8 +555,39 @@ impl<B: ChainBus> Bridge<B> {
         self.apply_inputs();
     }
 
-    /// One control tick at `now_ms`.
+    /// One control tick at `now_ms`, on a chain bus that clocks each window
+    /// when asked ([`ChainBus::window`], blocking).
+    ///
+    /// The same as [`Bridge::tick_begin`], the plan's windows through the
+    /// bus, [`Bridge::tick_end`] — which a driver that clocks the windows by
+    /// DMA calls itself, one tick's end right before the next one's begin.
     pub fn tick(&mut self, now_ms: u64) {
+        if !self.models_tick(now_ms) {
+            return;
+        }
+        let ok = self.group.tick(&mut self.chain).is_ok();
+        self.after_batch(ok);
+    }
+
+    /// First half of a control tick at `now_ms`: the watchdog, inputs and
+    /// device models, then every axis plans its commands. True if the plan
+    /// ([`Bridge::plan`]) has windows to clock; then the tick must be ended
+    /// with [`Bridge::tick_end`] before the next one begins. False: nothing
+    /// goes out and the tick is complete.
+    pub fn tick_begin(&mut self, now_ms: u64) -> bool {
+        if !self.models_tick(now_ms) {
+            return false;
+        }
+        if self.group.tick_begin(&mut self.chain).is_err() {
+            self.after_batch(false);
+            return false;
+        }
+        true
+    }
+
+    /// The watchdog, inputs and device models; false (and the tick is
+    /// complete) without axes.
+    fn models_tick(&mut self, now_ms: u64) -> bool {
         self.now_ms = now_ms;
         self.watch_buses();
         self.apply_inputs();
@@ -567,13 +598,30 @@ impl<B: ChainBus> Bridge<B> {
         }
         if self.devices.is_empty() {
             self.io_outputs();
-            return;
+            return false;
         }
-        if self.group.tick(&mut self.chain).is_err() {
+        true
+    }
+
+    /// The windows of the tick begun last: [`Plan::window`]`(w)` for `w` in
+    /// `0..windows()`, each one CS-low window of N bytes.
+    pub fn plan(&self) -> &Plan {
+        self.group.plan()
+    }
+
+    /// Second half of a control tick: what came back (row `w` holds window
+    /// `w`'s N bytes), or the bus error that cut the windows short.
+    pub fn tick_end(&mut self, rx: Result<&Frames, B::Error>) {
+        let ok = self.group.tick_end(&mut self.chain, rx).is_ok();
+        self.after_batch(ok);
+    }
+
+    fn after_batch(&mut self, ok: bool) {
+        if ok {
+            self.failed_ticks = 0;
+        } else {
             self.diag.chain_errors = self.diag.chain_errors.saturating_add(1);
             self.failed_ticks = self.failed_ticks.saturating_add(1);
-        } else {
-            self.failed_ticks = 0;
         }
         self.diag.chip_resets = self
             .group

@@ -5,7 +5,8 @@ use heapless::Vec;
 
 use super::axis::Axis;
 use crate::powerstep::chain::{
-    Batch, Chain, ChainBus, ChainError, Plan, Replies, ScheduleError, MAX_DEVICES,
+    Batch, Chain, ChainBus, ChainError, Frames, Plan, Replies, ScheduleError, MAX_DEVICES,
+    MAX_WINDOWS,
 };
 
 /// The axes of one chain; axis k drives chain device k.
@@ -98,25 +99,69 @@ impl AxisGroup {
     }
 
     /// One control tick on `chain` (whose length must equal the number of axes).
+    ///
+    /// [`AxisGroup::tick_begin`], every window through the blocking bus,
+    /// [`AxisGroup::tick_end`]: a driver that clocks the windows itself (by
+    /// DMA) calls those two around its transfer.
     pub fn tick<B: ChainBus>(
         &mut self,
         chain: &mut Chain<B>,
     ) -> Result<TickReport, ChainError<B::Error>> {
-        self.prepare().map_err(ChainError::Schedule)?;
-        let report = TickReport {
+        let report = self.tick_begin(chain)?;
+        let mut rx: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS];
+        let result = chain.clock(&self.plan, &mut rx);
+        self.tick_end(chain, result.map(|()| &rx)).map(|()| report)
+    }
+
+    /// First half of an asynchronous tick: every axis plans, the plan is
+    /// checked against the chain (resynced if out of step). The windows to
+    /// clock are [`AxisGroup::plan`]'s; then call [`AxisGroup::tick_end`].
+    /// On an error nothing goes out and every axis sets its chip up again.
+    pub fn tick_begin<B: ChainBus>(
+        &mut self,
+        chain: &mut Chain<B>,
+    ) -> Result<TickReport, ChainError<B::Error>> {
+        if let Err(e) = self.prepare() {
+            self.absorb_result(false);
+            return Err(ChainError::Schedule(e));
+        }
+        if let Err(e) = chain.begin(&self.plan) {
+            self.absorb_result(false);
+            return Err(e);
+        }
+        Ok(TickReport {
             windows: self.plan.windows(),
             bytes: self.plan.bytes(),
             sync_window: self.plan.sync_window(),
-        };
-        let result = chain.run_into(&self.plan, &mut self.replies);
+        })
+    }
+
+    /// The plan of the last [`AxisGroup::tick_begin`].
+    pub fn plan(&self) -> &Plan {
+        &self.plan
+    }
+
+    /// Second half of an asynchronous tick: what came back for the plan of
+    /// the last [`AxisGroup::tick_begin`] (or the bus error that cut it
+    /// short), decoded and absorbed.
+    pub fn tick_end<B: ChainBus>(
+        &mut self,
+        chain: &mut Chain<B>,
+        rx: Result<&Frames, B::Error>,
+    ) -> Result<(), ChainError<B::Error>> {
+        let result = chain.end(&self.plan, rx, &mut self.replies);
+        self.absorb_result(result.is_ok());
+        result
+    }
+
+    fn absorb_result(&mut self, ok: bool) {
         for (d, axis) in self.axes.iter_mut().enumerate() {
-            if result.is_ok() {
+            if ok {
                 axis.absorb(&self.replies, d);
             } else {
                 // Some chips may have missed commands: set every chip up again.
                 axis.on_chain_error();
             }
         }
-        result.map(|()| report)
     }
 }

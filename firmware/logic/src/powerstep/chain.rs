@@ -500,11 +500,39 @@ impl<B: ChainBus> Chain<B> {
     }
 
     /// Clock the windows of a plan and decode the replies into `replies`.
+    ///
+    /// The same as [`Chain::begin`], every window through the blocking
+    /// [`ChainBus::window`], then [`Chain::end`]: a driver that clocks the
+    /// windows itself (by DMA) calls those two around its transfer.
     pub fn run_into(
         &mut self,
         plan: &Plan,
         replies: &mut Replies,
     ) -> Result<(), ChainError<B::Error>> {
+        self.begin(plan)?;
+        let mut rx: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS];
+        let result = self.clock(plan, &mut rx);
+        self.end(plan, result.map(|()| &rx), replies)
+    }
+
+    /// Clock a plan's windows through the blocking [`ChainBus::window`]
+    /// (between [`Chain::begin`] and [`Chain::end`]); row `w` of `rx` gets
+    /// window `w`'s N bytes. Stops at the first bus error.
+    pub fn clock(&mut self, plan: &Plan, rx: &mut Frames) -> Result<(), B::Error> {
+        let n = self.len();
+        for (tx, rx) in plan.tx.iter().zip(rx.iter_mut()).take(plan.windows()) {
+            let (Some(tx), Some(rx)) = (tx.get(..n), rx.get_mut(..n)) else {
+                break;
+            };
+            self.bus.window(tx, rx)?;
+        }
+        Ok(())
+    }
+
+    /// Before a plan's windows go out: the plan must fit this chain, and a
+    /// chain out of step is brought back first (three NOP windows through
+    /// the blocking [`ChainBus::window`]).
+    pub fn begin(&mut self, plan: &Plan) -> Result<(), ChainError<B::Error>> {
         if self.n == 0 {
             return Err(ChainError::NotDetected);
         }
@@ -514,19 +542,29 @@ impl<B: ChainBus> Chain<B> {
         if self.out_of_step {
             self.resync()?;
         }
-        let n = self.len();
-        let mut rx: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS];
-        for (tx, rx) in plan.tx.iter().zip(rx.iter_mut()).take(plan.windows()) {
-            let (Some(tx), Some(rx)) = (tx.get(..n), rx.get_mut(..n)) else {
-                break;
-            };
-            if let Err(e) = self.bus.window(tx, rx) {
+        Ok(())
+    }
+
+    /// After a plan's windows: `rx` holds what came back, window by window
+    /// (the first N bytes of each row), or the bus error that cut the
+    /// transfer short — then the chain is out of step until the next
+    /// [`Chain::begin`] resyncs it.
+    pub fn end(
+        &mut self,
+        plan: &Plan,
+        rx: Result<&Frames, B::Error>,
+        replies: &mut Replies,
+    ) -> Result<(), ChainError<B::Error>> {
+        match rx {
+            Ok(rx) => {
+                plan.decode_into(rx, replies);
+                Ok(())
+            }
+            Err(e) => {
                 self.out_of_step = true;
-                return Err(ChainError::Bus(e));
+                Err(ChainError::Bus(e))
             }
         }
-        plan.decode_into(&rx, replies);
-        Ok(())
     }
 
     /// Schedule and run a batch.
