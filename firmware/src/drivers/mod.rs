@@ -12,4 +12,5 @@ pub mod chain_spi;
 pub mod clock;
 pub mod flash;
 pub mod i2c_slave;
+pub mod ioext_spi;
 pub mod rs485;
