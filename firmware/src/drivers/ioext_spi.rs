@@ -323,6 +323,9 @@ impl IoExtPort {
         if frames == 0 {
             return Started::Ended(Err(IoExtError::BadPlan));
         }
+        if !streams_stopped(&self.dma1, [SPI_RX_STREAM, SPI_TX_STREAM]) {
+            return Started::Ended(Err(self.stop(IoExtError::EngineStuck)));
+        }
         for (j, b) in self.bufs.tx.iter_mut().enumerate().take(frames) {
             *b = plan.tx_byte(j);
         }
@@ -468,6 +471,9 @@ impl IoExtPort {
         let bits = plan.mosi_bsrr(IOEXT_MOSI_PIN, &mut self.bufs.mosi_bsrr);
         if bits == 0 {
             return Started::Ended(Err(IoExtError::BadPlan));
+        }
+        if !streams_stopped(&self.dma2, [TIM_SAMPLE_STREAM, TIM_MOSI_STREAM]) {
+            return Started::Ended(Err(self.stop(IoExtError::EngineStuck)));
         }
         let tim = &self.tim;
         // Stopped, one-pulse, upcounting; registers loaded by UG below.
@@ -718,4 +724,12 @@ impl IoExtPort {
         let c = (ns * u64::from(self.sysclk_hz)).div_ceil(1_000_000_000);
         u32::try_from(c).unwrap_or(u32::MAX)
     }
+}
+
+/// Both streams read EN = 0 (a stream disabled by software finishes its
+/// current beat first; its registers are only writable after that).
+fn streams_stopped(dma: &pac::dma2::RegisterBlock, streams: [usize; 2]) -> bool {
+    streams
+        .iter()
+        .all(|&s| (0..END_POLLS).any(|_| dma.st(s).cr().read().en().is_disabled()))
 }

@@ -22,6 +22,10 @@ pub struct Target {
     pub iwdg: pac::IWDG,
     pub dbgmcu: pac::DBGMCU,
     pub tim2: pac::TIM2,
+    pub spi2: pac::SPI2,
+    pub tim1: pac::TIM1,
+    pub dma1: pac::DMA1,
+    pub dma2: pac::DMA2,
 }
 
 /// Clocks (platform), DWT cycle counter, SysTick monotonic, pins (board).
@@ -63,6 +67,10 @@ pub fn setup() -> Target {
         iwdg: dp.IWDG,
         dbgmcu: dp.DBGMCU,
         tim2: dp.TIM2,
+        spi2: dp.SPI2,
+        tim1: dp.TIM1,
+        dma1: dp.DMA1,
+        dma2: dp.DMA2,
     }
 }
 
