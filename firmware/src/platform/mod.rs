@@ -18,6 +18,7 @@
 //! | `Analog` | ADC1 (`drivers::analog`) | constant 24 V / 25 °C | ADC init reads calibration next to the unique ID, which HardFaults |
 //! | `SettingsFlash` | sectors 10 and 11 (`drivers::flash`) | RAM copy of a host file, written through by semihosting | flash controller not modelled |
 //! | `I2cSlaveDriver` | I2C1 slave (`drivers::i2c_slave`) | takes address changes; I2C1 stays off | I2C transfers hang |
+//! | `IoExtDriver`, `ioext_driver` | SPI2 + DMA1, TIM1 + DMA2, CS PB11 (`drivers::ioext_spi`) | `sim::ShiftChain` (two '165, one '595), ends at once; USART1 console `press N` / `release N` | no DMA, no TIM1 |
 //! | `HardFault` handler | STBY low, wait for the watchdog | exit QEMU with status 1 | a crash must end a run |
 //! | `measure_us`, `SYSTICK_LAG_MAX_PERCENT` (on-target tests) | DWT cycle counter; SysTick exact | host clock (semihosting); SysTick up to 50 % slow | QEMU's cycle counter reads 0; its SysTick re-arms late |
 //! | defmt transport | RTT (probe) | semihosting stdout | no probe |
