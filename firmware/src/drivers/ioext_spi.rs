@@ -42,10 +42,10 @@
 //!
 //! # Unsafe
 //!
-//! Three kinds of `unsafe`, each with a `SAFETY:` comment: the DMA
+//! Two kinds of `unsafe`, each with a `SAFETY:` comment: the DMA
 //! addresses (SPI2_DR, GPIOB_BSRR/IDR and the driver's own `'static`
-//! buffers), the shared GPIOB register block for the pins this driver
-//! owns, and nothing else.
+//! buffers) and the shared GPIOB register block for the pins this driver
+//! owns.
 //!
 //! # What is not verified
 //!
@@ -53,7 +53,8 @@
 //! the plan's recipe; `tests/ioext_spi.rs` (board only, MOSI jumpered to
 //! MISO) checks loopback, CS and the interrupt on hardware. QEMU 7.2
 //! models neither DMA nor TIM1, so the QEMU image replaces this driver
-//! (`platform/qemu.rs`).
+//! (`platform/qemu.rs`); `tests/ioext_abort.rs` runs this driver under
+//! QEMU, where no transfer ends (SPI2 set-up, the timeout path).
 
 // DMA addresses and the shared GPIOB block (see the module docs).
 #![allow(unsafe_code)]

@@ -39,7 +39,7 @@ use core::convert::Infallible;
 use bridge_logic::ioext::{Action, WireBits};
 use bridge_logic::postep60::analog::AnalogSample;
 use bridge_logic::powerstep::ChainBus;
-use bridge_logic::sim::{ShiftChain, SimChain};
+use bridge_logic::sim::{ConsoleCommand, ShiftChain, SimChain};
 use bridge_logic::transport::i2c::{I2cSlave, I2cTarget};
 use defmt_semihosting as _;
 use stm32f4xx_hal::pac;
@@ -265,7 +265,7 @@ impl IoExtDriver {
                 b'\n' | b'\r' => {
                     let len = core::mem::take(&mut self.len);
                     let line = self.line.get(..len).unwrap_or(&[]);
-                    let command = console_command(line);
+                    let command = ConsoleCommand::parse(line, IOEXT_165 * 8);
                     self.apply(command, len);
                 }
                 _ => {
@@ -278,34 +278,20 @@ impl IoExtDriver {
         }
     }
 
-    fn apply(&mut self, command: Option<(bool, usize)>, len: usize) {
+    fn apply(&mut self, command: Option<ConsoleCommand>, len: usize) {
         match command {
-            Some((closed, bit)) => {
-                // Contact to GND with a pull-up: closed reads 0.
-                self.chain.set_rx_bit(bit, !closed);
+            Some(c) => {
+                self.chain.apply(c);
                 defmt::info!(
                     "ioext console: input {=usize} {=str}",
-                    bit,
-                    if closed { "closed" } else { "open" }
+                    c.bit,
+                    if c.closed { "closed" } else { "open" }
                 );
             }
             None if len == 0 => {}
             None => defmt::warn!("ioext console: unknown line (want press N / release N)"),
         }
     }
-}
-
-/// `press N` → (true, N), `release N` → (false, N), N < the '165 inputs.
-fn console_command(line: &[u8]) -> Option<(bool, usize)> {
-    let text = core::str::from_utf8(line).ok()?.trim();
-    let (verb, arg) = text.split_once(' ')?;
-    let closed = match verb {
-        "press" => true,
-        "release" => false,
-        _ => return None,
-    };
-    let bit: usize = arg.trim().parse().ok()?;
-    (bit < IOEXT_165 * 8).then_some((closed, bit))
 }
 
 /// ADC1 stand-in: constant samples of a 24 V supply and a 25 °C die (at
