@@ -48,6 +48,20 @@ pub type ModbusUsart = pac::USART2;
 /// PoStep60 USB HID device. Its interrupt is `OTG_FS` (the `binds =` of the
 /// USB task in `main.rs` must follow this alias).
 pub type UsbOtg = (pac::OTG_FS_GLOBAL, pac::OTG_FS_DEVICE, pac::OTG_FS_PWRCLK);
+/// The I/O extension's SPI engine (on APB1, 42 MHz): SPI2 master, moved by
+/// [`IoExtSpiDma`].
+pub type IoExtSpi = pac::SPI2;
+/// The I/O extension's bit engine for slow clocks (on APB2, 168 MHz timer
+/// clock): TIM1, CH1N makes SCK, CC2/CC3 pace [`IoExtTimerDma`].
+pub type IoExtTimer = pac::TIM1;
+/// DMA1: stream 4 channel 0 = SPI2_TX, stream 3 channel 0 = SPI2_RX. The
+/// SPI engine ends in the `DMA1_STREAM3` interrupt (the `binds =` of the
+/// I/O-extension task in `main.rs` must follow this alias).
+pub type IoExtSpiDma = pac::DMA1;
+/// DMA2: stream 6 channel 6 = TIM1_CH3 (MOSI table → GPIOB BSRR), stream 2
+/// channel 6 = TIM1_CH2 (GPIOB IDR → MISO samples). Only DMA2 reaches the
+/// GPIO ports (AHB1). The bit engine ends in `DMA2_STREAM2`.
+pub type IoExtTimerDma = pac::DMA2;
 
 // ---------------------------------------------------------------------------
 // Pins in use (configured by [`configure`])
@@ -94,6 +108,28 @@ pub type ModbusDe = gpio::PA1<Output<PushPull>>;
 pub type UsbDm = gpio::PA11<Alternate<10>>;
 /// USB OTG FS D+ (AF10); the core pulls it up (1.5 kΩ) to connect.
 pub type UsbDp = gpio::PA12<Alternate<10>>;
+/// I/O extension SCK: a floating input until the first transfer; the
+/// driver (`drivers::ioext_spi`) then switches it between AF5 (SPI2_SCK)
+/// and AF1 (TIM1_CH1N) and pulls it towards the plan's CPOL.
+pub type IoExtSck = gpio::PB13<Input>;
+/// I/O extension MISO, input with a pull-up; from the first transfer on
+/// AF5 (SPI2_MISO), which the bit engine reads through GPIOB_IDR (the
+/// input stage works in AF mode too). ← QH of the first 74HC165.
+pub type IoExtMiso = gpio::PB14<Input>;
+/// I/O extension MOSI: a floating input until the first transfer; then AF5
+/// (SPI2_MOSI) for the SPI engine, a push-pull output written through
+/// GPIOB_BSRR for the bit engine. → SER of the first 74HC595.
+pub type IoExtMosi = gpio::PB15<Input>;
+/// I/O extension CS, push-pull, idle high; **needs an external pull-up**
+/// (it floats from reset until `configure`). → RCLK of the '595s, and
+/// through an inverter → SH/LD of the '165s (`docs/ioext.md`).
+pub type IoExtCs = gpio::PB11<Output<PushPull>>;
+/// GPIOB pin numbers of the bit engine's DMA table and samples (they must
+/// match [`IoExtMosi`] / [`IoExtMiso`], and both must be on port B).
+pub const IOEXT_MOSI_PIN: u8 = 15;
+pub const IOEXT_MISO_PIN: u8 = 14;
+/// GPIOB pin number of [`IoExtSck`] (its alternate function is switched).
+pub const IOEXT_SCK_PIN: u8 = 13;
 
 // ---------------------------------------------------------------------------
 // Pins reserved for later issues: declared, not configured
@@ -131,6 +167,10 @@ pub const PIN_TABLE: &[(&str, &str, &str)] = &[
     ("USB_DM",       "PA11", "USB OTG FS D- (AF10), PoStep60 USB HID"),
     ("USB_DP",       "PA12", "USB OTG FS D+ (AF10), PoStep60 USB HID"),
     ("CHAIN_STCK",   "PB1",  "reserved: GPIO, STEP pass-through to the chips' STCK"),
+    ("IOEXT_SCK",    "PB13", "I/O extension SCK: AF5 SPI2_SCK or AF1 TIM1_CH1N, idles at CPOL"),
+    ("IOEXT_MISO",   "PB14", "I/O extension MISO (AF5 SPI2_MISO; GPIOB_IDR for TIM1), pull-up"),
+    ("IOEXT_MOSI",   "PB15", "I/O extension MOSI: AF5 SPI2_MOSI or GPIO output (TIM1 + DMA2)"),
+    ("IOEXT_CS",     "PB11", "GPIO push-pull, idle high, external pull-up; '165 SH/LD via inverter"),
 ];
 
 /// The configured pins of everything in use.
@@ -155,11 +195,17 @@ pub struct Pins {
     pub modbus_de: ModbusDe,
     pub usb_dm: UsbDm,
     pub usb_dp: UsbDp,
+    pub ioext_sck: IoExtSck,
+    pub ioext_miso: IoExtMiso,
+    pub ioext_mosi: IoExtMosi,
+    pub ioext_cs: IoExtCs,
 }
 
 /// Configure every pin in use from the split GPIO ports. Safe states first:
 /// CS high (deselected), STBY low (chips held in reset until the caller
-/// releases them), LED off, RS-485 DE low (receive); the I2C pins are
+/// releases them), LED off, RS-485 DE low (receive), I/O extension CS
+/// high with SCK/MOSI undriven (the driver takes them at its first
+/// transfer); the I2C pins are
 /// released (open drain, and the I2C peripheral stays off until its driver
 /// starts it); the USB pins go to OTG FS's AF10, where the core's PHY keeps
 /// them released until USB starts. Reserved pins stay in their reset mode.
@@ -191,6 +237,12 @@ pub fn configure(
         // Full speed, 12 Mbit/s: the fastest slew.
         usb_dm: gpioa.pa11.into_alternate().speed(Speed::VeryHigh),
         usb_dp: gpioa.pa12.into_alternate().speed(Speed::VeryHigh),
+        ioext_cs: gpiob.pb11.into_push_pull_output_in_state(PinState::High),
+        ioext_sck: gpiob.pb13.into_floating_input(),
+        // QH of a '165 is always driven; the pull-up keeps MISO defined
+        // with nothing attached.
+        ioext_miso: gpiob.pb14.into_pull_up_input(),
+        ioext_mosi: gpiob.pb15.into_floating_input(),
     }
 }
 

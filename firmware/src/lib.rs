@@ -7,7 +7,7 @@
 //!   watchdog, reset cause, fault handler, log transport) from
 //!   `platform/board.rs` or `platform/qemu.rs`;
 //! * [`drivers`]: one module per peripheral driver (chain SPI, I2C slave,
-//!   RS-485, flash, analog, SysTick clock);
+//!   RS-485, flash, analog, SysTick clock, I/O-extension SPI);
 //! * [`failsafe`]: the panic handler and the STBY switch-off it shares with
 //!   the fault handlers.
 //!

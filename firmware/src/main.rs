@@ -10,6 +10,8 @@
 //! | `modbus_uart` | USART2 | 4 | – | `rs485` (USART2, DE), `modbus` |
 //! | `control_tick` | TIM2, 1 kHz | 3 | `tick` (TIM2), `watchdog` (IWDG), LED, STBY | `bridge` (chain: SPI1 + CS) |
 //! | `modbus_server` | async | 2 | – | `bridge`, `rs485`, `modbus`, `i2c` |
+//! | `ioext_run` | async | 2 | – | `ioext` (SPI2, TIM1, DMA1/2, PB11/13–15), `bridge` |
+//! | `ioext_spi_end`, `ioext_bit_end` | DMA1_STREAM3, DMA2_STREAM2 | 2 | – | `ioext`, `bridge` |
 //! | `i2c_event`, `i2c_error` | I2C1_EV, I2C1_ER | 2 | – | `bridge`, `i2c` (I2C1), `i2c_proto` |
 //! | `housekeeping` | async, 10 Hz | 1 | `analog` (ADC1), `store` (FLASH) | `bridge`, `rs485` |
 //! | `usb_hid` | OTG_FS, and pended by every control tick | 1 | `usb` (OTG FS) | `bridge` |
@@ -21,8 +23,20 @@
 //! * `control_tick`: `bridge.tick(now)` — one chain batch for every axis —,
 //!   STBY low for good once the bridge declares the chain dead, LED,
 //!   watchdog feed, the 10 Hz spawn of `housekeeping`, a pend of `usb_hid`,
-//!   and its own duration (DWT; the monotonic under QEMU) into the bridge's
-//!   diagnostics.
+//!   its own duration (DWT; the monotonic under QEMU) into the bridge's
+//!   diagnostics, and the I/O extension's next action
+//!   (`Bridge::take_io_action`) into a channel to `ioext_run` — nothing of
+//!   the transfer runs inside the tick.
+//! * `ioext_run` starts each transfer (`platform::IoExtDriver`, under QEMU
+//!   the simulated shift registers, which end at once) and waits for its
+//!   end at most the plan's `timeout_us`, then stops it and reports a
+//!   failure. `ioext_*_end` (the DMA transfer-complete / error interrupts)
+//!   finish the transfer (BSY / CEN, half a period, CS) and hand the
+//!   received bits to `Bridge::on_io_done` (`on_io_failed` on a DMA error).
+//!   Priority 2, below the control tick and the Modbus UART: they can delay
+//!   neither, except by the bridge lock around `on_io_done` (~1 250
+//!   instructions, shorter than a Modbus request's); the driver resource is
+//!   shared only at priority 2, so its locks mask nothing.
 //! * `modbus_server` sleeps until the server's t3.5 deadline, executes the
 //!   request with the bridge locked and starts the response; a changed
 //!   address base goes on to the I2C slave. `i2c_*` move PoStep60 I2C bytes.
@@ -59,6 +73,7 @@ fn main() {
 #[rtic::app(device = stm32f4xx_hal::pac, dispatchers = [UART4, UART5, USART6])]
 mod app {
     use bridge_logic::bridge::{boot_settings, Bridge, ResetCause, ResetTarget, SettingsSource};
+    use bridge_logic::ioext::{Action, WireBits};
     use bridge_logic::persist::{Store, StoreError, MAX_IMAGE};
     use bridge_logic::postep60::settings::{Settings, IMAGE_LEN};
     use bridge_logic::postep60::Board;
@@ -69,15 +84,17 @@ mod app {
     use firmware::board;
     use firmware::drivers::clock::{self, Mono};
     use firmware::drivers::i2c_slave::LockedTarget;
+    use firmware::drivers::ioext_spi::{IoExtBuffers, IoExtError, Started};
     use firmware::drivers::mcu;
     use firmware::drivers::rs485::{Rs485, Rx};
     use firmware::drivers::usb::Link;
     use firmware::platform::{
-        self, Analog, ChainDriver, I2cSlaveDriver, SettingsFlash, Stopwatch, TickTimer, Usb,
-        Watchdog,
+        self, Analog, ChainDriver, I2cSlaveDriver, IoExtDriver, SettingsFlash, Stopwatch,
+        TickTimer, Usb, Watchdog,
     };
     use rtic::Mutex;
     use rtic_monotonics::Timebase;
+    use rtic_sync::channel::{Receiver, Sender, TrySendError};
     use rtic_sync::signal::{SignalReader, SignalWriter};
     use stm32f4xx_hal::gpio::GpioExt;
     use stm32f4xx_hal::pac::Interrupt;
@@ -91,6 +108,10 @@ mod app {
     const WAKE_UP_MS: u32 = 20;
     /// Housekeeping (ADC, pending save, reset) every this many ticks (10 Hz).
     const HOUSEKEEPING_TICKS: u64 = TICK_HZ as u64 / 10;
+    /// I/O extension actions in flight from the control tick to `ioext_run`
+    /// (the bridge hands out at most one per tick, and none while its
+    /// transfer runs).
+    const IO_ACTIONS: usize = 2;
 
     #[shared]
     struct Shared {
@@ -108,6 +129,9 @@ mod app {
         /// PoStep60 I2C transaction framing (both I2C tasks, one priority).
         #[lock_free]
         i2c_proto: I2cSlave,
+        /// The I/O extension's port (`ioext_run` and the two DMA tasks, all
+        /// at priority 2).
+        ioext: IoExtDriver,
     }
 
     #[local]
@@ -133,9 +157,20 @@ mod app {
         bytes_seen: SignalReader<'static, ()>,
         /// OTG FS as the PoStep60 HID device (None: not started, QEMU).
         usb: Option<Usb>,
+        /// The control tick's end of the I/O extension's action channel.
+        io_actions: Sender<'static, Action, IO_ACTIONS>,
+        /// An action the channel had no room for, handed over next tick.
+        io_pending: Option<Action>,
+        /// `ioext_run`'s end of the action channel.
+        io_next: Receiver<'static, Action, IO_ACTIONS>,
+        /// "The transfer ended" from the DMA tasks to `ioext_run`.
+        io_ended: Receiver<'static, (), 2>,
+        /// The DMA tasks' ends of that channel.
+        io_ended_spi: Sender<'static, (), 2>,
+        io_ended_bit: Sender<'static, (), 2>,
     }
 
-    #[init]
+    #[init(local = [io_buffers: IoExtBuffers = IoExtBuffers::new()])]
     fn init(cx: init::Context) -> (Shared, Local) {
         let dp = cx.device;
         let mut core = cx.core;
@@ -226,6 +261,17 @@ mod app {
         );
         log_modbus(&rs485, &bridge, timing);
 
+        let ioext = platform::ioext_driver(
+            dp.SPI2,
+            dp.TIM1,
+            dp.DMA1,
+            dp.DMA2,
+            (pins.ioext_sck, pins.ioext_miso, pins.ioext_mosi),
+            pins.ioext_cs,
+            cx.local.io_buffers,
+            &mut rcc,
+        );
+
         let mut analog = Analog::new(dp.ADC1, pins.supply_sense, &mut rcc);
         bridge.on_analog(analog.sample());
 
@@ -236,8 +282,14 @@ mod app {
         if modbus_server::spawn().is_err() {
             error!("modbus: server task spawn failed");
         }
+        if ioext_run::spawn().is_err() {
+            error!("ioext: task spawn failed");
+        }
 
         let (bytes_in, bytes_seen) = rtic_sync::make_signal!(());
+        let (io_actions, io_next) = rtic_sync::make_channel!(Action, IO_ACTIONS);
+        let (io_ended_spi, io_ended) = rtic_sync::make_channel!((), 2);
+        let io_ended_bit = io_ended_spi.clone();
         (
             Shared {
                 bridge,
@@ -245,6 +297,7 @@ mod app {
                 modbus: RtuServer::new(timing),
                 i2c,
                 i2c_proto: I2cSlave::new(),
+                ioext,
             },
             Local {
                 tick,
@@ -257,6 +310,12 @@ mod app {
                 bytes_in,
                 bytes_seen,
                 usb,
+                io_actions,
+                io_pending: None,
+                io_next,
+                io_ended,
+                io_ended_spi,
+                io_ended_bit,
             },
         )
     }
@@ -302,7 +361,7 @@ mod app {
     /// The control loop: one bridge tick (one chain batch for every axis),
     /// then STBY, LED, the slow jobs at 10 Hz and a USB poll; the tick's
     /// duration goes to the bridge's diagnostics.
-    #[task(binds = TIM2, priority = 3, shared = [bridge], local = [tick, ticks, led, stby, watchdog])]
+    #[task(binds = TIM2, priority = 3, shared = [bridge], local = [tick, ticks, led, stby, watchdog, io_actions, io_pending])]
     fn control_tick(mut cx: control_tick::Context) {
         let stopwatch = Stopwatch::start();
         cx.local.tick.acknowledge();
@@ -312,10 +371,11 @@ mod app {
         *cx.local.ticks += 1;
         let ticks = *cx.local.ticks;
         let now = ticks * u64::from(TICK_US) / 1000;
-        let (on, dead) = cx.shared.bridge.lock(|b| {
+        let (on, dead, io) = cx.shared.bridge.lock(|b| {
             b.tick(now);
-            (b.led_on(now), b.chain_dead())
+            (b.led_on(now), b.chain_dead(), b.take_io_action())
         });
+        hand_over_io(cx.local.io_actions, cx.local.io_pending, io);
         // The bridge can no longer stop the motors over SPI: hold every chip
         // in reset, bridges off. The pin is given up with it (a dropped HAL
         // pin keeps its mode and level), so nothing can drive STBY high
@@ -339,6 +399,92 @@ mod app {
         cx.shared
             .bridge
             .lock(|b| b.tick_timing(duration_us, TICK_US));
+    }
+
+    /// The I/O extension's actions to `ioext_run`, oldest first; one that
+    /// finds the channel full waits for the next tick.
+    fn hand_over_io(
+        tx: &mut Sender<'static, Action, IO_ACTIONS>,
+        pending: &mut Option<Action>,
+        new: Option<Action>,
+    ) {
+        for action in [pending.take(), new].into_iter().flatten() {
+            match tx.try_send(action) {
+                Ok(()) => {}
+                Err(TrySendError::Full(a)) => {
+                    if pending.replace(a).is_some() {
+                        error!("ioext: action dropped (channel full twice)");
+                    }
+                }
+                Err(TrySendError::NoReceiver(_)) => error!("ioext: task gone, action dropped"),
+            }
+        }
+    }
+
+    /// The I/O extension's driver side: start each action the control tick
+    /// hands over, then wait for the DMA task to end the transfer, at most
+    /// the plan's timeout; past it, stop the transfer and report a failure.
+    #[task(priority = 2, shared = [ioext, bridge], local = [io_next, io_ended])]
+    async fn ioext_run(mut cx: ioext_run::Context) {
+        loop {
+            let Ok(action) = cx.local.io_next.recv().await else {
+                error!("ioext: action channel closed");
+                return;
+            };
+            // An end reported after the last wait gave up.
+            while cx.local.io_ended.try_recv().is_ok() {}
+            let started = cx.shared.ioext.lock(|d| d.run(&action));
+            let ended = match (started, action) {
+                (Started::Running, Action::Transfer(plan)) => {
+                    let deadline = clock::now_us().saturating_add(plan.timeout_us());
+                    let wait = cx.local.io_ended.recv();
+                    match Mono::timeout_at(clock::instant_at_us(deadline), wait).await {
+                        Ok(_) => None,
+                        Err(_) => cx.shared.ioext.lock(|d| d.abort()),
+                    }
+                }
+                (Started::Ended(result), _) => Some(result),
+                (Started::Running, Action::Disable) | (Started::Released, _) => None,
+            };
+            if let Some(result) = ended {
+                report_io(&mut cx.shared.bridge, result);
+            }
+        }
+    }
+
+    /// SPI engine: DMA1 stream 3 (SPI2_RX) complete or in error.
+    #[task(binds = DMA1_STREAM3, priority = 2, shared = [ioext, bridge], local = [io_ended_spi])]
+    fn ioext_spi_end(mut cx: ioext_spi_end::Context) {
+        if let Some(result) = cx.shared.ioext.lock(|d| d.on_interrupt()) {
+            report_io(&mut cx.shared.bridge, result);
+            let _ = cx.local.io_ended_spi.try_send(());
+        }
+    }
+
+    /// Bit engine: DMA2 stream 2 (TIM1_CH2 samples) complete or in error.
+    #[task(binds = DMA2_STREAM2, priority = 2, shared = [ioext, bridge], local = [io_ended_bit])]
+    fn ioext_bit_end(mut cx: ioext_bit_end::Context) {
+        if let Some(result) = cx.shared.ioext.lock(|d| d.on_interrupt()) {
+            report_io(&mut cx.shared.bridge, result);
+            let _ = cx.local.io_ended_bit.try_send(());
+        }
+    }
+
+    /// The end of a transfer, to the bridge.
+    fn report_io(
+        bridge: &mut impl Mutex<T = Bridge<ChainDriver>>,
+        result: Result<WireBits, IoExtError>,
+    ) {
+        let taken = bridge.lock(|b| match &result {
+            Ok(rx) => b.on_io_done(rx),
+            Err(_) => b.on_io_failed(),
+        });
+        if let Err(e) = result {
+            warn!("ioext: transfer failed ({})", e);
+        }
+        if taken.is_err() {
+            warn!("ioext: a transfer ended that the bridge did not run");
+        }
     }
 
     /// USART2: received bytes, stamped, into the Modbus server; the

@@ -13,6 +13,7 @@ pub mod chain_spi;
 pub mod clock;
 pub mod flash;
 pub mod i2c_slave;
+pub mod ioext_spi;
 pub mod mcu;
 pub mod rs485;
 pub mod usb;

@@ -15,9 +15,13 @@ use stm32f4xx_hal::watchdog::IndependentWatchdog;
 use stm32f4xx_hal::{ClearFlags, Listen};
 
 use super::ResetCause;
-use crate::board::{self, ChainCs, ChainMiso, ChainMosi, ChainSck, ChainSpi};
+use crate::board::{
+    self, ChainCs, ChainMiso, ChainMosi, ChainSck, ChainSpi, IoExtCs, IoExtMiso, IoExtMosi,
+    IoExtSck, IoExtSpi, IoExtSpiDma, IoExtTimer, IoExtTimerDma,
+};
 use crate::drivers::chain_spi::ChainSpiBus;
 use crate::drivers::flash::{StoreFlash, ERASE_MAX_MS};
+use crate::drivers::ioext_spi::{IoExtBuffers, IoExtPort};
 
 pub use crate::drivers::analog::Analog;
 pub use crate::drivers::i2c_slave::I2cSlaveDriver;
@@ -143,6 +147,26 @@ pub fn chain_driver(
     rcc: &mut Rcc,
 ) -> ChainDriver {
     ChainSpiBus::new(spi, pins, cs, rcc)
+}
+
+/// The I/O extension's port: SPI2 / TIM1 with DMA1 / DMA2
+/// (`drivers::ioext_spi`).
+pub type IoExtDriver = IoExtPort;
+
+/// Take SPI2, TIM1, DMA1, DMA2 and the extension's pins (nothing is driven
+/// until the first transfer; CS stays high).
+#[allow(clippy::too_many_arguments)]
+pub fn ioext_driver(
+    spi: IoExtSpi,
+    tim: IoExtTimer,
+    dma1: IoExtSpiDma,
+    dma2: IoExtTimerDma,
+    pins: (IoExtSck, IoExtMiso, IoExtMosi),
+    cs: IoExtCs,
+    bufs: &'static mut IoExtBuffers,
+    rcc: &mut Rcc,
+) -> IoExtDriver {
+    IoExtPort::new(spi, tim, dma1, dma2, pins, cs, bufs, rcc)
 }
 
 /// The settings store's flash: sectors 10 and 11.

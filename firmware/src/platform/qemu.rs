@@ -18,6 +18,15 @@
 //!   store's two erase units in RAM, loaded at boot from a host file and
 //!   written through by semihosting, so settings saved under QEMU survive a
 //!   restart.
+//! * **I/O extension**: [`IoExtDriver`] runs every transfer through the
+//!   logic crate's simulated 74HC165/74HC595 chain ([`IOEXT_165`] '165s,
+//!   [`IOEXT_595`] '595) at once, instead of SPI2/TIM1/DMA (QEMU 7.2's
+//!   STM32F405 has no DMA controller and no TIM1). Its inputs are buttons
+//!   with pull-ups, all open at boot; the test hook is a console on USART1
+//!   (QEMU's first `-serial`, `QEMU_CONSOLE` in `scripts/qemu-run`) that
+//!   takes lines `press N` / `release N` (N = receive bit 0..15 in wire
+//!   order: press closes the contact, the bit reads 0), polled at every
+//!   transfer and logged (`ioext console: …`).
 //! * **Faults**: a HardFault (also the end of the panic handler, after its
 //!   message) exits QEMU with status 1, so a crash fails a run instead of
 //!   hanging it.
@@ -27,9 +36,10 @@
 
 use core::convert::Infallible;
 
+use bridge_logic::ioext::{Action, WireBits};
 use bridge_logic::postep60::analog::AnalogSample;
 use bridge_logic::powerstep::ChainBus;
-use bridge_logic::sim::SimChain;
+use bridge_logic::sim::{ConsoleCommand, ShiftChain, SimChain};
 use bridge_logic::transport::i2c::{I2cSlave, I2cTarget};
 use defmt_semihosting as _;
 use stm32f4xx_hal::pac;
@@ -38,9 +48,11 @@ use stm32f4xx_hal::rcc::{Config, Enable, Rcc, RccExt, Reset};
 use super::ResetCause;
 use crate::board::{
     self, ChainCs, ChainMiso, ChainMosi, ChainSck, ChainSpi, HostI2c, HostI2cScl, HostI2cSda,
+    IoExtCs, IoExtMiso, IoExtMosi, IoExtSck, IoExtSpi, IoExtSpiDma, IoExtTimer, IoExtTimerDma,
     SenseAdc, SupplySense,
 };
 use crate::drivers::clock;
+use crate::drivers::ioext_spi::{IoExtBuffers, IoExtError, Started};
 use crate::drivers::usb::Link;
 use bridge_logic::transport::usb::REPORT_LEN;
 use usb_device::device::UsbDeviceState;
@@ -176,6 +188,117 @@ pub fn chain_driver(
     ChainDriver {
         chain: SimChain::new(AXES),
         last_us: clock::now_us(),
+    }
+}
+
+/// 74HC165s (16 inputs) on the simulated I/O extension port.
+pub const IOEXT_165: usize = 2;
+/// 74HC595s (8 lamps) on the simulated I/O extension port.
+pub const IOEXT_595: usize = 1;
+/// Longest console line (`release 255` and some slack).
+const CONSOLE_LINE: usize = 24;
+
+/// The I/O extension's port under QEMU: the simulated shift registers and
+/// the USART1 console that presses their buttons (module docs).
+pub struct IoExtDriver {
+    chain: ShiftChain,
+    console: pac::USART1,
+    line: [u8; CONSOLE_LINE],
+    len: usize,
+}
+
+/// The simulated port instead of SPI2/TIM1/DMA (which, and whose pins,
+/// stay as `board::configure` left them); USART1 becomes the console.
+#[allow(clippy::too_many_arguments)]
+pub fn ioext_driver(
+    _spi: IoExtSpi,
+    _tim: IoExtTimer,
+    _dma1: IoExtSpiDma,
+    _dma2: IoExtTimerDma,
+    _pins: (IoExtSck, IoExtMiso, IoExtMosi),
+    _cs: IoExtCs,
+    _bufs: &'static mut IoExtBuffers,
+    rcc: &mut Rcc,
+) -> IoExtDriver {
+    // SAFETY: nothing else in the firmware uses USART1 (the app never takes
+    // it out of `pac::Peripherals`); from here on this console owns it.
+    let console = unsafe { pac::USART1::steal() };
+    pac::USART1::enable(rcc);
+    // Receive only; QEMU ignores the baud rate.
+    console.cr1().write(|w| w.ue().set_bit().re().set_bit());
+    let mut chain = ShiftChain::new(IOEXT_165, IOEXT_595);
+    // Pull-ups, every contact open.
+    for i in 0..IOEXT_165 * 8 {
+        chain.set_rx_bit(i, true);
+    }
+    IoExtDriver {
+        chain,
+        console,
+        line: [0; CONSOLE_LINE],
+        len: 0,
+    }
+}
+
+impl IoExtDriver {
+    /// Run the action on the simulated chain: a transfer ends at once.
+    pub fn run(&mut self, action: &Action) -> Started {
+        self.poll_console();
+        match action {
+            Action::Transfer(plan) => Started::Ended(Ok(self.chain.transfer(plan))),
+            Action::Disable => Started::Released,
+        }
+    }
+
+    /// No DMA interrupt ever fires under QEMU.
+    pub fn on_interrupt(&mut self) -> Option<Result<WireBits, IoExtError>> {
+        None
+    }
+
+    /// Nothing is ever left running.
+    pub fn abort(&mut self) -> Option<Result<WireBits, IoExtError>> {
+        None
+    }
+
+    /// The simulated chips (for tests).
+    pub fn chain(&self) -> &ShiftChain {
+        &self.chain
+    }
+
+    /// Take every byte USART1 has (QEMU holds the rest back until DR is
+    /// read, so none is lost between polls) and act on complete lines.
+    fn poll_console(&mut self) {
+        while self.console.sr().read().rxne().bit_is_set() {
+            let byte = self.console.dr().read().dr().bits() as u8;
+            match byte {
+                b'\n' | b'\r' => {
+                    let len = core::mem::take(&mut self.len);
+                    let line = self.line.get(..len).unwrap_or(&[]);
+                    let command = ConsoleCommand::parse(line, IOEXT_165 * 8);
+                    self.apply(command, len);
+                }
+                _ => {
+                    if let Some(slot) = self.line.get_mut(self.len) {
+                        *slot = byte;
+                        self.len += 1;
+                    }
+                }
+            }
+        }
+    }
+
+    fn apply(&mut self, command: Option<ConsoleCommand>, len: usize) {
+        match command {
+            Some(c) => {
+                self.chain.apply(c);
+                defmt::info!(
+                    "ioext console: input {=usize} {=str}",
+                    c.bit,
+                    if c.closed { "closed" } else { "open" }
+                );
+            }
+            None if len == 0 => {}
+            None => defmt::warn!("ioext console: unknown line (want press N / release N)"),
+        }
     }
 }
 

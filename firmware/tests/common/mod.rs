@@ -23,6 +23,10 @@ pub struct Target {
     pub dbgmcu: pac::DBGMCU,
     pub tim2: pac::TIM2,
     pub usb_otg: board::UsbOtg,
+    pub spi2: pac::SPI2,
+    pub tim1: pac::TIM1,
+    pub dma1: pac::DMA1,
+    pub dma2: pac::DMA2,
 }
 
 /// Clocks (platform), DWT cycle counter, SysTick monotonic, pins (board).
@@ -65,6 +69,10 @@ pub fn setup() -> Target {
         dbgmcu: dp.DBGMCU,
         tim2: dp.TIM2,
         usb_otg: (dp.OTG_FS_GLOBAL, dp.OTG_FS_DEVICE, dp.OTG_FS_PWRCLK),
+        spi2: dp.SPI2,
+        tim1: dp.TIM1,
+        dma1: dp.DMA1,
+        dma2: dp.DMA2,
     }
 }
 

@@ -151,6 +151,18 @@ impl TransferPlan {
             .div_ceil(u64::from(p.hz).saturating_mul(2).max(1))
     }
 
+    /// How long the driver waits for the end of this transfer before it
+    /// gives up (stops the engine, raises CS and reports a failure), µs:
+    /// twice the nominal duration ([`TransferPlan::nominal_ns`]) plus 2 ms
+    /// for the start and end latency (higher-priority tasks, the 10 kHz
+    /// monotonic's granularity). A transfer that works ends long before.
+    pub fn timeout_us(&self) -> u64 {
+        self.nominal_ns()
+            .div_ceil(1_000)
+            .saturating_mul(2)
+            .saturating_add(2_000)
+    }
+
     /// The SPI2 settings, for a plan on the SPI engine.
     pub fn spi(&self) -> Option<SpiSetup> {
         match self.clock.engine {
@@ -303,5 +315,20 @@ mod tests {
         let p = plan(256, SpiMode::MODE0, 255);
         assert_eq!(p.nominal_ns(), 6_546_858);
         assert_eq!(p.half_period_ns(), 12_762);
+    }
+
+    #[test]
+    fn the_timeout_is_twice_the_nominal_duration_plus_2_ms() {
+        // 12.215 µs → 13 µs, twice that, plus 2 ms.
+        assert_eq!(plan(256, SpiMode::MODE0, 0).timeout_us(), 2_026);
+        // 6 546.858 µs → 6 547 µs, twice that, plus 2 ms: 15.1 ms.
+        assert_eq!(plan(256, SpiMode::MODE0, 255).timeout_us(), 15_094);
+        // Always longer than the transfer, whatever the plan.
+        for bits in [1u16, 8, 9, 256] {
+            for n in [0u8, 1, 5, 50, 255] {
+                let p = plan(bits, SpiMode::MODE3, n);
+                assert!(p.timeout_us() * 1_000 > 2 * p.nominal_ns());
+            }
+        }
     }
 }

@@ -22,4 +22,4 @@ pub use chain::SimChain;
 pub use clock::{SimClock, SimControl};
 pub use flash::{SimFlash, SimFlashError};
 pub use powerstep01::{Fault, Powerstep01, TICK_NS};
-pub use shift::ShiftChain;
+pub use shift::{ConsoleCommand, ShiftChain};

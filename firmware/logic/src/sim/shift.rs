@@ -228,6 +228,43 @@ impl ShiftChain {
     }
 }
 
+/// A line of the QEMU image's I/O-extension console (the test hook that
+/// presses the simulated buttons): `press N` closes the contact of input N
+/// (receive bit N, wire order) and `release N` opens it. The inputs have
+/// pull-ups and contacts to GND, as the box's (docs/ioext.md), so a closed
+/// contact reads 0.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ConsoleCommand {
+    /// Receive bit (wire order).
+    pub bit: usize,
+    /// `press`: the contact closes (the bit reads 0).
+    pub closed: bool,
+}
+
+impl ConsoleCommand {
+    /// The command on `line` (ASCII, surrounding blanks ignored), or `None`
+    /// for anything else, a bit at or past `inputs` included.
+    pub fn parse(line: &[u8], inputs: usize) -> Option<ConsoleCommand> {
+        let text = core::str::from_utf8(line).ok()?.trim();
+        let (verb, arg) = text.split_once(' ')?;
+        let closed = match verb {
+            "press" => true,
+            "release" => false,
+            _ => return None,
+        };
+        let bit: usize = arg.trim().parse().ok()?;
+        (bit < inputs).then_some(ConsoleCommand { bit, closed })
+    }
+}
+
+impl ShiftChain {
+    /// Apply a console command to the inputs (pull-up: closed reads 0).
+    pub fn apply(&mut self, command: ConsoleCommand) {
+        self.set_rx_bit(command.bit, !command.closed);
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -396,5 +433,54 @@ mod tests {
         let _ = c.transfer(&p);
         assert_eq!(c.rising_edges(), 9);
         assert!(c.miso(), "the '165 reloaded, not shifted");
+    }
+
+    #[test]
+    fn console_lines_press_and_release_inputs_within_the_chain() {
+        let parse = |l: &str| ConsoleCommand::parse(l.as_bytes(), 16);
+        assert_eq!(
+            parse("press 3"),
+            Some(ConsoleCommand {
+                bit: 3,
+                closed: true
+            })
+        );
+        assert_eq!(
+            parse("  release 15 "),
+            Some(ConsoleCommand {
+                bit: 15,
+                closed: false
+            })
+        );
+        assert_eq!(parse("press 16"), None, "past the chain");
+        for bad in ["", "press", "press x", "push 3", "press -1", "PRESS 3"] {
+            assert_eq!(parse(bad), None, "{bad:?}");
+        }
+        assert_eq!(ConsoleCommand::parse(&[0xFF, b' ', b'1'], 16), None);
+
+        let mut chain = ShiftChain::new(2, 1);
+        for i in 0..16 {
+            chain.set_rx_bit(i, true);
+        }
+        let plan = plan(16, SpiMode::MODE0, WireBits::ZERO);
+        assert_eq!(
+            chain.transfer(&plan).words()[0],
+            0xFFFF,
+            "pull-ups: all open"
+        );
+        chain.apply(ConsoleCommand {
+            bit: 3,
+            closed: true,
+        });
+        assert_eq!(
+            chain.transfer(&plan).words()[0],
+            0xEFFF,
+            "bit 3 closed reads 0"
+        );
+        chain.apply(ConsoleCommand {
+            bit: 3,
+            closed: false,
+        });
+        assert_eq!(chain.transfer(&plan).words()[0], 0xFFFF);
     }
 }
