@@ -343,6 +343,112 @@ pub struct Axis {
     absolute_read: bool,
     /// A chip register read for the extension space.
     ext_read: Option<RegRead>,
+    /// The chip's oscillator against the control tick (see [`ClockRate`]).
+    rate: ClockRate,
+}
+
+/// How fast the chip's time runs against the bridge's: the powerSTEP01's
+/// internal oscillator is a few % off 16 MHz, so a `Run` at speed `s` moves
+/// it `ratio · s`. Without this a proportional correction leaves a following
+/// error of `ratio − 1` times the speed times the correction period (3.6 full
+/// steps at ±5 % in the random scenario) and a move passes its target by
+/// several microsteps before it lands.
+///
+/// Estimated while streaming at a steady profile speed (cruising: a ramp
+/// makes the chip move less than commanded) from what was commanded and
+/// what the chip moved between position reads: over windows of at least
+/// [`RATE_WINDOW`] microsteps while the chip follows (following error ≤
+/// [`RATE_MAX_ERROR`], speed below its MAX_SPEED), `ratio = moved /
+/// commanded` (clamped to ±10 %; the first window's estimate is taken as it is, later ones are
+/// averaged 1:1 with the last estimate); every `Run` speed is then
+/// divided by it (a multiply by the Q16 reciprocal: no division per tick).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct ClockRate {
+    /// chip time / bridge time, Q16 (65 536: equal).
+    ratio: u32,
+    /// 2³² / ratio.
+    inv: u32,
+    /// SPEED of the last `Run` (signed, as sent): what the chip runs at.
+    running: i64,
+    /// Sum of `running` over the ticks since the last position read.
+    since_read: i64,
+    /// Window sums: commanded (SPEED · ticks) and moved (microsteps).
+    cmd: i64,
+    moved: i64,
+    /// The last position read came while streaming: a window may go on.
+    armed: bool,
+    /// The profile kept its speed at the last tick: the chip ran at
+    /// `running` the whole tick (while the profile ramps, the chip ramps
+    /// toward each new speed with its ACC and moves less than commanded).
+    steady: bool,
+    /// Windows taken so far (the first one replaces the default).
+    estimates: u32,
+}
+
+/// Microsteps a window of the clock-rate estimate must cover.
+pub const RATE_WINDOW: i64 = 1024;
+/// A window ends when the following error exceeds this (microsteps): the
+/// chip is not following the `Run` speeds then (still stopping, landing).
+pub const RATE_MAX_ERROR: i64 = 64;
+
+impl ClockRate {
+    const NEW: ClockRate = ClockRate {
+        ratio: 1 << 16,
+        inv: 1 << 16,
+        running: 0,
+        since_read: 0,
+        cmd: 0,
+        moved: 0,
+        armed: false,
+        steady: false,
+        estimates: 0,
+    };
+
+    /// The window ends (the chip did something else than follow `Run`).
+    fn disarm(&mut self) {
+        self.armed = false;
+        self.cmd = 0;
+        self.moved = 0;
+        self.since_read = 0;
+        self.running = 0;
+    }
+
+    /// A position read while streaming: the chip moved `moved` microsteps
+    /// since the last one under the `since_read` commands.
+    fn take(&mut self, moved: i64, tick_us: u32, step_shift: u32) {
+        if self.armed {
+            self.cmd = self.cmd.saturating_add(self.since_read);
+            self.moved = self.moved.saturating_add(moved);
+        }
+        self.since_read = 0;
+        self.armed = true;
+        if self.moved.abs() < RATE_WINDOW {
+            return;
+        }
+        let (cmd, moved) = (self.cmd, self.moved);
+        self.cmd = 0;
+        self.moved = 0;
+        if cmd == 0 || (cmd < 0) != (moved < 0) {
+            return;
+        }
+        // expected microsteps = cmd · tick_us · 2^(S+2) / 2²⁸, so
+        // ratio_q16 = moved · 2¹⁶ / expected = moved · 2^(42−S) / (cmd · tick_us).
+        let num = i128::from(moved) << (42 - step_shift.min(8));
+        let den = i128::from(cmd) * i128::from(tick_us.max(1));
+        let new = (num / den).clamp(58_982, 72_090) as u32; // ±10 %
+        self.ratio = if self.estimates == 0 {
+            new
+        } else {
+            (self.ratio + new) / 2
+        };
+        self.estimates = self.estimates.saturating_add(1);
+        self.inv = ((1u64 << 32) / u64::from(self.ratio.max(1))) as u32;
+    }
+
+    /// A SPEED the chip runs at the bridge's rate, in its own time.
+    fn scale(&self, speed: u64) -> u64 {
+        (speed * u64::from(self.inv)) >> 16
+    }
 }
 
 /// A read of a chip register asked for by the extension space.
@@ -415,6 +521,7 @@ impl Axis {
             homed: false,
             absolute_read: false,
             ext_read: None,
+            rate: ClockRate::NEW,
         };
         axis.refresh_limits();
         axis
@@ -463,6 +570,12 @@ impl Axis {
             _ => self.profile.position_round(),
         }
     }
+    /// How fast the chip's oscillator runs against the control tick, as
+    /// estimated while cruising (Q16: 65 536 = equal; see `ClockRate`).
+    pub fn clock_ratio_q16(&self) -> u32 {
+        self.rate.ratio
+    }
+
     /// Chip resets or undervoltages detected since boot (each one re-ran the setup).
     pub fn chip_resets(&self) -> u32 {
         self.resets
@@ -898,6 +1011,14 @@ impl Axis {
 
     fn plan_commands(&mut self, mut emit: impl FnMut(Command) -> bool) {
         self.tick = self.tick.wrapping_add(1);
+        // The tick that just ended ran at the last Run's speed.
+        // Not while the chip's MAX_SPEED caps it (SPEED = MAX_SPEED · 2¹⁰).
+        let capped = self.rate.running.unsigned_abs() >= u64::from(self.limits.max_speed) << 10;
+        if self.state == AxisState::Streaming && self.rate.steady && !capped {
+            self.rate.since_read = self.rate.since_read.saturating_add(self.rate.running);
+        } else {
+            self.rate.disarm();
+        }
         let read = if self.tick % 2 == 0 {
             Read::Position
         } else {
@@ -1129,8 +1250,10 @@ impl Axis {
     }
 
     fn stream(&mut self, emit: &mut impl FnMut(Command) -> bool) {
-        let before = self.profile.velocity_internal().unsigned_abs();
+        let v0 = self.profile.velocity_internal();
+        let before = v0.unsigned_abs();
         self.profile.tick();
+        self.rate.steady = self.profile.velocity_internal() == v0;
         // MAX_SPEED backstop: raised at once when the profile needs more; lowered
         // to the new max speed only once the profile has slowed down to it (a
         // lower max speed mid-move is reached with the profile's DEC, not the chip's).
@@ -1170,8 +1293,16 @@ impl Axis {
         } else {
             Direction::Forward
         };
-        let mag = spd.unsigned_abs().min(u64::from(SPEED_MAX)) as u32;
-        emit(Command::Run(dir, mag));
+        let mag = self
+            .rate
+            .scale(spd.unsigned_abs())
+            .min(u64::from(SPEED_MAX)) as u32;
+        if emit(Command::Run(dir, mag)) {
+            self.rate.running = match dir {
+                Direction::Forward => i64::from(mag),
+                Direction::Reverse => -i64::from(mag),
+            };
+        }
     }
 
     /// Take this tick's replies for the axis's device.
@@ -1209,11 +1340,22 @@ impl Axis {
         if core::mem::take(&mut self.absolute_read) {
             // The chip re-based its frame (homing): its value is the position.
             rb.chip_pos = i64::from(sign_extend_22(raw));
+            self.rate.disarm();
         } else {
             let base = rb.raw.unwrap_or(wrap_22(rb.chip_pos as i32));
             let delta = sign_extend_22(raw.wrapping_sub(base) & 0x3F_FFFF);
             rb.chip_pos += i64::from(delta);
+            // Only while the chip follows: a chip still stopping or landing
+            // when streaming began runs its own ramps.
+            let follows = (rb.expected_at_read - rb.chip_pos).abs() <= RATE_MAX_ERROR;
+            if self.state == AxisState::Streaming && rb.raw.is_some() && follows {
+                self.rate
+                    .take(i64::from(delta), self.cfg.tick_us, self.cfg.step.shift());
+            } else {
+                self.rate.disarm();
+            }
         }
+        let rb = &mut self.rb;
         rb.raw = Some(raw);
         rb.pos_at = self.tick;
         // Measured in every state: when a move starts while the chip is

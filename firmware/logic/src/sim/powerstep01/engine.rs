@@ -64,13 +64,24 @@ impl Powerstep01 {
 
     /// Let `dt_ns` nanoseconds pass (exact; see the module docs).
     pub fn advance(&mut self, dt_ns: u64) {
-        let total = u128::from(self.ns_rem) + u128::from(dt_ns);
-        let ticks = u64::try_from(total / u128::from(TICK_NS)).unwrap_or(u64::MAX);
-        self.ns_rem = (total % u128::from(TICK_NS)) as u64;
+        // In chip time: dt · (10⁶ + ppm), in units of 10⁻⁶ ns (the remainder
+        // carries over, so no time is lost at any error).
+        let rate = u128::from((1_000_000 + i64::from(self.clock_ppm)).max(1) as u64);
+        let unit = u128::from(TICK_NS) * 1_000_000;
+        let total = u128::from(self.ns_rem) + u128::from(dt_ns) * rate;
+        let ticks = u64::try_from(total / unit).unwrap_or(u64::MAX);
+        self.ns_rem = (total % unit) as u64;
         if self.dead.is_some() {
             return;
         }
         self.run_engine(ticks);
+    }
+
+    /// The oscillator's error, ppm (clamped to ±50 %): the chip's time runs
+    /// `1 + ppm/10⁶` as fast as [`Powerstep01::advance`]'s. The powerSTEP01's
+    /// internal oscillator is a few % off its 16 MHz.
+    pub fn set_clock_error_ppm(&mut self, ppm: i32) {
+        self.clock_ppm = ppm.clamp(-500_000, 500_000);
     }
 
     pub(super) fn run_engine(&mut self, mut avail: u64) {

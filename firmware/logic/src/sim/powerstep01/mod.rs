@@ -85,44 +85,49 @@
 //!    latched (facts doc: UNCONFIRMED). UVLO_ADC follows the ADCIN condition
 //!    ([`Fault::AdcinLow`] / [`Fault::AdcinNormal`]) and is not latched
 //!    (UNCONFIRMED); ADC_OUT keeps its table reset value.
-//! 4. **Stall** asserts STALL_A (bit 14, ST naming) only; it does not stop
+//! 4. **Oscillator error** ([`Powerstep01::set_clock_error_ppm`], 0 by
+//!    default): the chip's time runs `1 + ppm/10⁶` as fast as the caller's,
+//!    like an internal 16 MHz oscillator a few % off. The tolerance of the
+//!    real one is not in the facts doc (UNCONFIRMED); the motion tests use
+//!    ±5 %.
+//! 5. **Stall** asserts STALL_A (bit 14, ST naming) only; it does not stop
 //!    the motor (the chip only flags it).
-//! 5. **Bridge lock:** after an overcurrent with CONFIG.OC_SD = 1, and while
+//! 6. **Bridge lock:** after an overcurrent with CONFIG.OC_SD = 1, and while
 //!    the thermal condition is shutdown, commands that would enable the
 //!    bridges (motion and stop commands) are refused with CMD_ERROR; the
 //!    overcurrent lock is released by GetStatus.
-//! 6. **Floor speed:** MIN_SPEED (bits 11:0) is the start speed of every
+//! 7. **Floor speed:** MIN_SPEED (bits 11:0) is the start speed of every
 //!    motion from rest and the speed at which decelerations end (a SoftStop
 //!    stops when the speed would drop below it). LSPD_OPT (bit 12) is
 //!    ignored. When MAX_SPEED < MIN_SPEED, MAX_SPEED wins.
-//! 7. **ACC = 0xFFF** is infinite acceleration (speed jumps to the target);
+//! 8. **ACC = 0xFFF** is infinite acceleration (speed jumps to the target);
 //!    DEC = 0xFFF is an ordinary finite deceleration. ACC or DEC = 0 never
 //!    changes speed in that direction (no hang, the motor just keeps going).
-//! 8. **Direction changes:** Run/GoUntil/GoTo… in the opposite direction while
+//! 9. **Direction changes:** Run/GoUntil/GoTo… in the opposite direction while
 //!    moving decelerate with DEC to the floor speed, stop, then start the
 //!    other way. DIR reads the direction the motor actually turns.
-//! 9. **Positioning while moving** (GoTo while a Run is at constant speed —
-//!    accepted because BUSY is released): in the wrong direction the motor
-//!    brakes, reverses and comes back; in the right direction with less room
-//!    than the braking distance it brakes and stops abruptly on the target
-//!    rather than overshoot. GoTo to the current microstep while moving stops
-//!    at once on it.
-//! 10. **GoUntil** waits for a SW falling edge (a switch already closed does
+//! 10. **Positioning while moving** (GoTo while a Run is at constant speed —
+//!     accepted because BUSY is released): in the wrong direction the motor
+//!     brakes, reverses and comes back; in the right direction with less room
+//!     than the braking distance it brakes and stops abruptly on the target
+//!     rather than overshoot. GoTo to the current microstep while moving stops
+//!     at once on it.
+//! 11. **GoUntil** waits for a SW falling edge (a switch already closed does
 //!     not count), applies ACT, then SoftStops — or HardStops when
 //!     CONFIG.SW_MODE is 0, because the switch hard-stop interrupt applies to
 //!     every edge.
 //!     **ReleaseSW** moves at max(MIN_SPEED, 5 step/s) (clamped by MAX_SPEED)
 //!     until the switch opens, applies ACT, then HardStops; sent while the
 //!     switch is already open it applies ACT at once and does not move.
-//! 11. **Step-clock mode** is left by any motion, stop or HiZ command; each
+//! 12. **Step-clock mode** is left by any motion, stop or HiZ command; each
 //!     [`Powerstep01::step_clock_pulse`] moves one microstep (ignored in HiZ).
-//! 12. **Dead device** ([`Fault::Dead`]): SDO stuck at the given byte, input
+//! 13. **Dead device** ([`Fault::Dead`]): SDO stuck at the given byte, input
 //!     ignored, the motion engine frozen with bridges off. [`Fault::Revive`]
 //!     reconnects it with its state kept (bridges still in HiZ, parser idle,
 //!     pending response dropped). A power cycle does not revive a dead device.
-//! 13. **Power-up:** HiZ, stopped, DIR = forward, UVLO asserted.
-//! 14. **EL_POS** follows the motion (1/128 units, 9 bits).
-//! 15. **Log:** [`Powerstep01::received`] holds the last 32 fully received,
+//! 14. **Power-up:** HiZ, stopped, DIR = forward, UVLO asserted.
+//! 15. **EL_POS** follows the motion (1/128 units, 9 bits).
+//! 16. **Log:** [`Powerstep01::received`] holds the last 32 fully received,
 //!     decodable commands other than NOP (also those refused for a state
 //!     reason); NOPs — the chain's padding — are not logged, and bytes
 //!     refused at the command byte are not commands and are only counted as
@@ -265,8 +270,11 @@ pub struct Powerstep01 {
     th_cond: u8,
     th_latched: u8,
     dead: Option<u8>,
-    /// Nanoseconds not yet worth a whole tick.
+    /// Chip time not yet worth a whole tick, in 10⁻⁶ ns.
     ns_rem: u64,
+    /// Oscillator error in ppm (the chip's time runs `1 + ppm/10⁶` as fast
+    /// as the caller's): the internal 16 MHz oscillator is not exact.
+    clock_ppm: i32,
     // --- inspection ---
     log: Deque<Command, LOG_LEN>,
     received_count: u64,
@@ -321,6 +329,7 @@ impl Powerstep01 {
             th_latched: 0,
             dead: None,
             ns_rem: 0,
+            clock_ppm: 0,
             log: Deque::new(),
             received_count: 0,
             command_errors: 0,

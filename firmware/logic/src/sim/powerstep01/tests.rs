@@ -1202,3 +1202,33 @@ fn move_is_refused_while_a_run_is_still_accelerating() {
     cmd(&mut d, Command::GoTo(100));
     assert_eq!(d.command_errors(), before + 2);
 }
+
+#[test]
+fn an_oscillator_5_percent_fast_lives_5_percent_more_chip_time() {
+    // The same command and caller time: 1 000 000 ticks of 250 ns at 16 MHz,
+    // 1 050 000 with the oscillator 5 % fast.
+    let mut exact = ready();
+    let mut fast = ready();
+    fast.set_clock_error_ppm(50_000);
+    for d in [&mut exact, &mut fast] {
+        cmd(d, Command::SetParam(Register::Acc, 0xFFF));
+        cmd(d, Command::Run(Forward, 1 << 20 >> 1));
+    }
+    exact.advance(1_000_000 * TICK);
+    fast.advance(1_000_000 * TICK);
+    // Past the (infinite) ramp both run at the same speed: positions scale.
+    let (e, f) = (i64::from(exact.abs_pos()), i64::from(fast.abs_pos()));
+    let d = |x: i64| x.rem_euclid(1 << 22);
+    assert!(e > 0);
+    assert!((d(f) * 100 - d(e) * 105).abs() <= 105 * 2, "{e} vs {f}");
+}
+
+#[test]
+fn the_oscillator_error_is_clamped_to_50_percent() {
+    let mut d = ready();
+    d.set_clock_error_ppm(i32::MIN);
+    cmd(&mut d, Command::SetParam(Register::Acc, 0xFFF));
+    cmd(&mut d, Command::Run(Forward, 1 << 16));
+    d.advance(1000 * TICK);
+    assert!(d.abs_pos() > 0, "time still runs at half speed");
+}
