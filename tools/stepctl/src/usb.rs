@@ -71,9 +71,8 @@ pub fn list() -> Result<Vec<Found>> {
 pub fn not_found() -> Error {
     Error::Comm(format!(
         "USB: no stepbridge/PoStep60 HID device (VID 0x{VID:04X}, PID 0x{PID:04X}) found: is the box \
-         plugged in, does its firmware have the USB interface (it is not available in this firmware \
-         before USB HID was integrated; use --tcp or --port), and may you open /dev/hidraw* \
-         (README: udev rule)?"
+         plugged in and running a firmware with USB HID (the QEMU image has no USB: use --tcp), \
+         and may you open /dev/hidraw* (README: udev rule)?"
     ))
 }
 
