@@ -854,7 +854,7 @@ pub fn is_terminal() -> bool {
 mod tests {
     use super::*;
     use crate::cli::Cli;
-    use crate::modbus::fake::rtu;
+    use crate::modbus::fake::{fixed, framed, rtu};
     use clap::Parser;
 
     fn command(args: &[&str]) -> Command {
@@ -886,23 +886,7 @@ mod tests {
         for v in [state, 0, faults, 0] {
             b.extend_from_slice(&v.to_be_bytes());
         }
-        with_crc(&b)
-    }
-
-    fn with_crc(b: &[u8]) -> String {
-        // Modbus spec CRC-16 (oracle for generated frames).
-        let mut c = 0xFFFFu16;
-        for x in b {
-            c ^= u16::from(*x);
-            for _ in 0..8 {
-                c = if c & 1 != 0 {
-                    (c >> 1) ^ 0xA001
-                } else {
-                    c >> 1
-                };
-            }
-        }
-        format!("{} {:02X} {:02X}", hex(b), c & 0xFF, c >> 8)
+        framed(&b)
     }
 
     const MOTION_1: &str = "01 03 06 00 00 0A C5 45";
@@ -1042,14 +1026,6 @@ mod tests {
                 .contains("stopped at 800 before reaching 3000"),
             "{e}"
         );
-    }
-
-    fn fixed(script: &[(String, String)]) -> Vec<(String, String)> {
-        let fix = |s: &String| match s.strip_suffix(" CC CC") {
-            Some(b) => with_crc(&crate::modbus::fake::bytes(b)),
-            None => s.clone(),
-        };
-        script.iter().map(|(a, b)| (fix(a), fix(b))).collect()
     }
 
     #[test]

@@ -511,6 +511,33 @@ pub mod fake {
         }
     }
 
+    /// `bytes` as a frame with its CRC: the Modbus spec's bitwise CRC-16
+    /// (poly 0xA001, init 0xFFFF, low byte first), written out here as a
+    /// test oracle independent of the `crc` crate stepctl sends with.
+    pub fn framed(bytes: &[u8]) -> String {
+        let mut c = 0xFFFFu16;
+        for x in bytes {
+            c ^= u16::from(*x);
+            for _ in 0..8 {
+                c = if c & 1 != 0 {
+                    (c >> 1) ^ 0xA001
+                } else {
+                    c >> 1
+                };
+            }
+        }
+        format!("{} {:02X} {:02X}", hex(bytes), c & 0xFF, c >> 8)
+    }
+
+    /// Generated script lines ending in a "CC CC" placeholder get their CRC.
+    pub fn fixed(script: &[(String, String)]) -> Vec<(String, String)> {
+        let fix = |s: &String| match s.strip_suffix(" CC CC") {
+            Some(b) => framed(&bytes(b)),
+            None => s.clone(),
+        };
+        script.iter().map(|(a, b)| (fix(a), fix(b))).collect()
+    }
+
     pub fn rtu(script: &[(&str, &str)]) -> Rtu<FakeLink> {
         Rtu::new(FakeLink::new(script), Duration::from_millis(10))
     }

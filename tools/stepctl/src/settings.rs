@@ -1124,7 +1124,7 @@ mod tests {
                 )
             })
             .collect();
-        let chip = fix(&chip);
+        let chip = crate::modbus::fake::fixed(&chip);
         for (q, r) in &chip {
             script.push((q.as_str(), r.as_str()));
         }
@@ -1139,29 +1139,5 @@ mod tests {
         );
         assert_eq!(a, want);
         assert!(m.link.done());
-    }
-
-    /// CRCs for generated frames (computed by the Modbus spec's algorithm).
-    fn fix(frames: &[(String, String)]) -> Vec<(String, String)> {
-        fn crc(b: &[u8]) -> u16 {
-            let mut c = 0xFFFFu16;
-            for x in b {
-                c ^= u16::from(*x);
-                for _ in 0..8 {
-                    c = if c & 1 != 0 {
-                        (c >> 1) ^ 0xA001
-                    } else {
-                        c >> 1
-                    };
-                }
-            }
-            c
-        }
-        let one = |s: &str| {
-            let b = crate::modbus::fake::bytes(s.trim_end_matches(" CC CC"));
-            let c = crc(&b);
-            format!("{} {:02X} {:02X}", crate::bus::hex(&b), c & 0xFF, c >> 8)
-        };
-        frames.iter().map(|(q, r)| (one(q), one(r))).collect()
     }
 }
