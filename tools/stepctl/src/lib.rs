@@ -1,0 +1,16 @@
+//! stepctl: commission and drive a stepbridge box from a PC (issue 14).
+//!
+//! Layers: [`modbus`] and [`usb`] carry registers of the box's Modbus map
+//! ([`bus::Bus`]); [`ops`] and [`settings`] know what the registers mean;
+//! [`app`] is every command; [`cli`] the command line. `main.rs` only opens
+//! the transport, runs the command and maps errors to exit codes.
+
+pub mod app;
+pub mod bus;
+pub mod cli;
+pub mod error;
+pub mod modbus;
+pub mod ops;
+pub mod plot;
+pub mod settings;
+pub mod usb;
