@@ -252,3 +252,53 @@ fn modbus_starts_homing_with_fc06_on_0x0400() {
     assert_eq!(b.read(1, CMD, 1), Ok(vec![2]), "searching");
     assert!(b.chip(0).is_busy());
 }
+
+#[test]
+fn the_end_switch_settings_are_writable_over_modbus_and_enable_homing() {
+    let mut s = Settings::FACTORY;
+    s.axes[0].end_switch = false;
+    let mut b = ModbusBench::new(1, s);
+    assert_eq!(b.write(1, CMD, 1), Err(4), "switch disabled");
+    assert_eq!(b.write(1, 0x040B, 3), Ok(()));
+    assert_eq!(
+        b.read(1, 0x040B, 1),
+        Ok(vec![3]),
+        "enabled, normally closed"
+    );
+    assert!(b.bridge.settings().axes[0].end_switch);
+    assert!(b.bridge.settings().axes[0].end_switch_nc);
+    assert_eq!(b.write(1, 0x040B, 4), Err(3), "reserved bits");
+    assert_eq!(b.write(1, 0x040B, 1), Ok(()));
+    assert_eq!(b.write(1, CMD, 1), Ok(()), "homing starts now");
+    assert_eq!(b.write(1, 0x040B, 0), Err(4), "not while homing");
+}
+
+#[test]
+fn a_cam_on_the_simulated_shaft_homes_the_axis_onto_its_edge_without_help() {
+    use bridge_logic::sim::HomeCam;
+    let mut s = Settings::FACTORY;
+    s.axes[0].end_switch = true;
+    let mut b = ModbusBench::new(1, s);
+    b.bridge
+        .chain_mut()
+        .bus_mut()
+        .device_mut(0)
+        .expect("chip")
+        .set_home_cam(Some(HomeCam {
+            edge: -3_000,
+            nc: false,
+        }));
+    assert_eq!(b.write(1, CMD, 1), Ok(()));
+    for _ in 0..600 {
+        b.run(100);
+        if b.read(1, CMD, 1) == Ok(vec![4]) {
+            break;
+        }
+    }
+    assert_eq!(b.read(1, CMD, 1), Ok(vec![4]), "done");
+    assert_eq!(b.read(1, HOMED, 1), Ok(vec![1]));
+    let past = b.chip(0).shaft_position() - (-3_000 + 1);
+    // The cam is sampled once per control tick: the zero is within a tick of
+    // release travel of the edge.
+    assert!((0..=64).contains(&past), "{past} microsteps from the edge");
+}

@@ -126,7 +126,10 @@ pub mod homing {
     pub const MAX_TRAVEL: u8 = 0x08;
     /// s, 0 = no limit.
     pub const TIMEOUT_S: u8 = 0x0A;
-    pub const LEN: usize = 0x0B;
+    /// The PoStep60 end-switch settings of the axis (otherwise only USB
+    /// 0x88 / 0xB1 set them): bit 0 enabled, bit 1 normally closed.
+    pub const END_SWITCH: u8 = 0x0B;
+    pub const LEN: usize = 0x0C;
 }
 
 /// Communication watchdog (0x05nn, bridge-wide).
@@ -370,6 +373,8 @@ impl<B: ChainBus> Bridge<B> {
         put32(&mut r, homing::RELEASE_SPEED, h.release_speed);
         put32(&mut r, homing::MAX_TRAVEL, h.max_travel);
         r[usize::from(homing::TIMEOUT_S)] = h.timeout_s;
+        r[usize::from(homing::END_SWITCH)] =
+            u16::from(d.settings.end_switch) | u16::from(d.settings.end_switch_nc) << 1;
         Ok(r)
     }
 
@@ -380,6 +385,18 @@ impl<B: ChainBus> Bridge<B> {
         let (Some(d), Some(a)) = (self.devices.get_mut(k), self.group.axis_mut(k)) else {
             return Err(ExtError::IllegalAddress);
         };
+        if offset == homing::END_SWITCH {
+            return match data {
+                // Not while homing runs into the switch it uses.
+                [v] if *v <= 3 && a.is_homing() => Err(ExtError::Refused),
+                [v] if *v <= 3 => {
+                    d.settings.end_switch = v & 1 != 0;
+                    d.settings.end_switch_nc = v & 2 != 0;
+                    Ok(())
+                }
+                _ => Err(ExtError::IllegalValue),
+            };
+        }
         let h = &mut d.settings.homing;
         match (offset, data) {
             (homing::COMMAND, [1]) => match d.start_homing(a) {

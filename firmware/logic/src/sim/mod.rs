@@ -21,5 +21,5 @@ pub mod shift;
 pub use chain::SimChain;
 pub use clock::{SimClock, SimControl};
 pub use flash::{SimFlash, SimFlashError};
-pub use powerstep01::{Fault, Powerstep01, TICK_NS};
+pub use powerstep01::{Fault, HomeCam, Powerstep01, TICK_NS};
 pub use shift::{ConsoleCommand, ShiftChain};

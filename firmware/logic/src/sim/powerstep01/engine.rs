@@ -75,6 +75,7 @@ impl Powerstep01 {
             return;
         }
         self.run_engine(ticks);
+        self.apply_cam();
     }
 
     /// The oscillator's error, ppm (clamped to ±50 %): the chip's time runs

@@ -7,6 +7,22 @@ impl Powerstep01 {
     // ---------------------------------------------------- environment ----
 
     /// Drive the SW input. Closing is the falling edge ("turn-on").
+    /// A cam on the motor shaft drives the SW input: pressed while the
+    /// shaft is at or below `edge` microsteps (contact closed, or open for
+    /// `nc`), evaluated after every [`Powerstep01::advance`] (so the edge is
+    /// seen within one advance, not on the microstep). `None` removes it.
+    pub fn set_home_cam(&mut self, cam: Option<HomeCam>) {
+        self.cam = cam;
+        self.apply_cam();
+    }
+
+    pub(super) fn apply_cam(&mut self) {
+        if let Some(c) = self.cam {
+            let pressed = self.shaft <= c.edge;
+            self.set_switch(pressed != c.nc);
+        }
+    }
+
     pub fn set_switch(&mut self, closed: bool) {
         let was = self.sw_closed;
         self.sw_closed = closed;

@@ -224,6 +224,16 @@ enum Ph {
     Wait,
 }
 
+/// A cam on the motor shaft that presses the end switch (SW input) below an
+/// edge: [`Powerstep01::set_home_cam`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct HomeCam {
+    /// Pressed while the shaft is at or below this, microsteps.
+    pub edge: i64,
+    /// A normally closed switch: pressed opens the contact.
+    pub nc: bool,
+}
+
 /// A simulated powerSTEP01.
 #[derive(Clone, Debug)]
 pub struct Powerstep01 {
@@ -272,6 +282,8 @@ pub struct Powerstep01 {
     dead: Option<u8>,
     /// Chip time not yet worth a whole tick, in 10⁻⁶ ns.
     ns_rem: u64,
+    /// The home switch cam on the shaft, if any.
+    cam: Option<HomeCam>,
     /// Oscillator error in ppm (the chip's time runs `1 + ppm/10⁶` as fast
     /// as the caller's): the internal 16 MHz oscillator is not exact.
     clock_ppm: i32,
@@ -330,6 +342,7 @@ impl Powerstep01 {
             dead: None,
             ns_rem: 0,
             clock_ppm: 0,
+            cam: None,
             log: Deque::new(),
             received_count: 0,
             command_errors: 0,
