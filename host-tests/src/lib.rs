@@ -4,6 +4,7 @@
 pub mod i2c_bench;
 pub mod modbus_bench;
 pub mod rig;
+pub mod rm0090;
 pub mod sim_bridge;
 pub mod svg;
 pub mod usb_bench;
