@@ -7,8 +7,10 @@
 //! | task | runs on | priority | owns | shares |
 //! |---|---|---|---|---|
 //! | `init` | reset | – | reset handoff, RCC, SysTick, IWDG, GPIO; starts everything below | – |
+//! | `chain_window_end` | DMA2_STREAM0 | 5 | – | `chain` (SPI1, DMA2 streams 0/3, TIM7, CS) |
+//! | `chain_gap_end` | TIM7 | 5 | – | `chain` |
 //! | `modbus_uart` | USART2 | 4 | – | `rs485` (USART2, DE), `modbus` |
-//! | `control_tick` | TIM2, 1 kHz | 3 | `tick` (TIM2), `watchdog` (IWDG), LED, STBY | `bridge` (chain: SPI1 + CS) |
+//! | `control_tick` | TIM2, 1 kHz | 3 | `tick` (TIM2), `watchdog` (IWDG), LED, STBY | `bridge` (its chain bus: SPI1 + CS, blocking), `chain` |
 //! | `modbus_server` | async | 2 | – | `bridge`, `rs485`, `modbus`, `i2c` |
 //! | `ioext_run` | async | 2 | – | `ioext` (SPI2, TIM1, DMA1/2, PB11/13–15), `bridge` |
 //! | `ioext_spi_end`, `ioext_bit_end` | DMA1_STREAM3, DMA2_STREAM2 | 2 | – | `ioext`, `bridge` |
@@ -16,12 +18,31 @@
 //! | `housekeeping` | async, 10 Hz | 1 | `analog` (ADC1), `store` (FLASH) | `bridge`, `rs485` |
 //! | `usb_hid` | OTG_FS, and pended by every control tick | 1 | `usb` (OTG FS) | `bridge` |
 //!
+//! * `chain_window_end` / `chain_gap_end` run the control tick's chain
+//!   batch (`drivers::chain_spi`): per window TIM7 times the CS-high gap
+//!   (≥ 800 ns) and the CS set-up (≥ 350 ns), DMA2 moves the N bytes, and
+//!   stream 0's transfer-complete raises CS and arms the next window. Tens
+//!   of instructions each (README, "The control tick: rate and cost").
+//!   Highest priority: the windows are the motion's timing and must not
+//!   wait behind the Modbus UART or a bridge lock; they can delay the UART
+//!   task by one of these short handlers (< 1 µs), nothing at the Modbus
+//!   line's scale (t1.5 ≥ 750 µs). The control tick's `chain` locks (start,
+//!   hand-over: ~140 and ~70 instructions) mask both for that long.
 //! * `modbus_uart` stamps each received byte with the monotonic's µs and
 //!   hands it to the Modbus RTU server; the response leaves by TXE/TC
-//!   interrupts with DE high. Highest priority: stamps stay accurate and a
-//!   response never pauses between characters (> t1.5 would break it).
-//! * `control_tick`: `bridge.tick(now)` — one chain batch for every axis —,
-//!   STBY low for good once the bridge declares the chain dead, LED,
+//!   interrupts with DE high. Above everything but the chain's interrupts:
+//!   stamps stay accurate and a response never pauses between characters
+//!   (> t1.5 would break it).
+//! * `control_tick`: `Bridge::tick_pipelined` — one chain batch for every
+//!   axis, by DMA: the batch started by the previous tick is collected
+//!   (`ChainDma::poll`, its rows copied out) and ended (its replies
+//!   absorbed), then this tick is planned and its batch started; the bytes
+//!   shift while the CPU does other work. Batch k's replies are absorbed at
+//!   tick k + 1's start, before batch k + 1 is planned: the blocking
+//!   tick's order, one period later. A batch still on the bus when the
+//!   tick comes skips the tick (an overrun in the diagnostics); one past
+//!   its deadline (2 × nominal + 100 µs) is stopped and ends as a chain
+//!   error. Then STBY low for good once the bridge declares the chain dead, LED,
 //!   watchdog feed, the 10 Hz spawn of `housekeeping`, a pend of `usb_hid`,
 //!   its own duration (DWT; the monotonic under QEMU) into the bridge's
 //!   diagnostics, and the I/O extension's next action

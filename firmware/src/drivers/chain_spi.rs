@@ -119,10 +119,11 @@ const ERRORS: u32 = FEIF0 | DMEIF0 | TEIF0 | DMEIF3 | TEIF3;
 /// beyond a byte (3.05 µs ≈ 512 cycles, a poll takes several), short
 /// enough not to hang.
 const POLLS: u32 = 20_000;
-/// Status polls for BSY after a window's last byte (inside the interrupt):
-/// BSY clears within one SCK period of the last edge (64 cycles); 256
+/// Status polls inside an interrupt or a lock: BSY after a window's last
+/// byte (clears within one SCK period of the last edge, 64 cycles), a
+/// stream's EN after it was disabled (clears after the current beat); 256
 /// polls are ≥ 4.5 µs.
-const BSY_POLLS: u32 = 256;
+const SHORT_POLLS: u32 = 256;
 
 /// Set while a DMA batch owns SPI1 and CS.
 static BATCH_RUNNING: AtomicBool = AtomicBool::new(false);
@@ -562,7 +563,7 @@ impl ChainDma {
             *dst = *src;
         }
         let d = dma2();
-        if !(0..POLLS).any(|_| {
+        if !(0..SHORT_POLLS).any(|_| {
             d.st(RX_STREAM).cr().read().en().is_disabled()
                 && d.st(TX_STREAM).cr().read().en().is_disabled()
         }) {
@@ -653,7 +654,7 @@ impl ChainDma {
         }
         // The last byte is in, its last edge has passed: SPI1 is normally
         // idle already.
-        if sr.bsy().bit_is_set() && !spi_idle(BSY_POLLS) {
+        if sr.bsy().bit_is_set() && !spi_idle(SHORT_POLLS) {
             self.stats.stuck = self.stats.stuck.saturating_add(1);
             self.fail(ChainSpiError::Stuck);
             return;
@@ -789,7 +790,7 @@ impl ChainDma {
         for s in [RX_STREAM, TX_STREAM] {
             d.st(s).cr().modify(|_, w| w.en().disabled());
         }
-        let _ = spi_idle(BSY_POLLS);
+        let _ = spi_idle(SHORT_POLLS);
         drain_spi();
         clear_flags();
         // An interrupt of the stopped batch may be pending: it would find
