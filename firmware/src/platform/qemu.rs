@@ -44,7 +44,7 @@ use bridge_logic::ioext::{Action, WireBits};
 use bridge_logic::postep60::analog::AnalogSample;
 use bridge_logic::powerstep::chain::{Frames, Plan};
 use bridge_logic::powerstep::ChainBus;
-use bridge_logic::sim::{ConsoleCommand, ShiftChain, SimChain};
+use bridge_logic::sim::{ConsoleCommand, HomeCam, ShiftChain, SimChain};
 use bridge_logic::transport::i2c::{I2cSlave, I2cTarget};
 use defmt_semihosting as _;
 use stm32f4xx_hal::pac;
@@ -250,14 +250,27 @@ pub fn chain_driver(
     bufs: &'static mut ChainBuffers,
     _rcc: &mut Rcc,
 ) -> (ChainDriver, ChainDma) {
+    let mut chain = SimChain::new(AXES);
+    // The last axis has a home switch: a cam on its shaft presses SW below
+    // HOME_CAM_EDGE microsteps (the end-to-end test homes it over Modbus).
+    if let Some(chip) = chain.device_mut(AXES - 1) {
+        chip.set_home_cam(Some(HomeCam {
+            edge: HOME_CAM_EDGE,
+            nc: false,
+        }));
+    }
     (
         ChainDriver {
-            chain: SimChain::new(AXES),
+            chain,
             last_us: clock::now_us(),
         },
         ChainDma { bufs, done: None },
     )
 }
+
+/// Where the last simulated axis's home switch closes, microsteps (1/128:
+/// 25 full steps below the power-up position).
+pub const HOME_CAM_EDGE: i64 = -3_200;
 
 /// 74HC165s (16 inputs) on the simulated I/O extension port.
 pub const IOEXT_165: usize = 2;
