@@ -20,12 +20,18 @@ The scenario (PoStep60 register map: address 0x00nn = command nn):
   8. Diagnostics (extension space 0x0300..): the Modbus counters count the
      frames and the exception so far, the control tick's duration is
      measured (max > 0 us).
-  9. With --save: write settings (0x003F), retried while it is refused with
+  9. Extension space on id 4 (the QEMU image's axis with a home switch: a
+     cam on its simulated shaft closes SW 25 full steps below 0): read the
+     chip's OCD_TH (0x0113, GetParam through the chain), write it (tuning)
+     and read it back; enable the end switch (0x040B) and home the axis
+     (0x0400 = 1) until done; homed (0x0402) = 1 and position 0 at the edge.
+ 10. With --save: write settings (0x003F), retried while it is refused with
      exception 04 (an axis still landing); scripts/qemu-e2e then waits for
      the firmware's "settings: saved" log line.
 With --check-saved it runs only the restart check instead: after QEMU was
 restarted on the same settings flash, both axes read back the max speed /
-acceleration / deceleration of step 4, and their positions are 0 again.
+acceleration / deceleration of step 4, and their positions are 0 again; id
+4's OCD_TH and end-switch setting are the ones step 9 wrote.
 Exits non-zero on the first failure; prints per-request timings.
 """
 
@@ -53,6 +59,12 @@ DIAG_MODBUS = 0x0300
 DIAG_TICK = 0x032A
 TICK_US = 1000
 FACTORY_SPEED_ACC_DEC = [1000, 1000, 1000]
+# Extension space: chip register nn at 0x01nn; homing block 0x04nn.
+HOME_SID = 4
+OCD_TH = 0x0113
+OCD_TH_TUNED = 10
+HOMING_CMD, HOMING_RESULT, HOMED, END_SWITCH = 0x0400, 0x0401, 0x0402, 0x040B
+HOMING_STATES = {0: "idle", 1: "clearing the switch", 2: "searching", 3: "releasing", 4: "done", 5: "failed"}
 
 # (server id, max speed steps/s, acc, dec steps/s², target steps)
 AXES = [
@@ -174,6 +186,37 @@ def scenario(client, move_timeout):
     return move_s
 
 
+def extensions(client, timeout):
+    sid = HOME_SID
+    before = read(client, OCD_TH, 1, sid)[0]
+    check(0 <= before <= 0x1F, f"id {sid}: chip register OCD_TH (0x{OCD_TH:04X}) reads {before} (5 bits)")
+    write_one(client, OCD_TH, OCD_TH_TUNED, sid, False)
+    back = read(client, OCD_TH, 1, sid)[0]
+    check(back == OCD_TH_TUNED, f"id {sid}: tuning write OCD_TH = {OCD_TH_TUNED} reads back {back} from the chip")
+
+    write_one(client, END_SWITCH, 1, sid, False)
+    check(read(client, END_SWITCH, 1, sid)[0] == 1, f"id {sid}: end switch enabled (0x{END_SWITCH:04X} = 1)")
+    start = time.monotonic()
+    write_one(client, HOMING_CMD, 1, sid, False)
+    seen = []
+    while True:
+        state = read(client, HOMING_CMD, 1, sid)[0]
+        if not seen or seen[-1] != state:
+            seen.append(state)
+        if state >= 4:
+            break
+        if time.monotonic() - start > timeout:
+            raise Failure(f"id {sid}: homing still {HOMING_STATES.get(state, state)} after {timeout} s")
+        time.sleep(0.05)
+    result = read(client, HOMING_RESULT, 1, sid)[0]
+    check(state == 4 and result == 0,
+          f"id {sid}: homed in {time.monotonic() - start:.2f} s through "
+          f"{' -> '.join(HOMING_STATES.get(x, str(x)) for x in seen)} (result {result})")
+    check(read(client, HOMED, 1, sid)[0] == 1, f"id {sid}: homed flag 1")
+    pos = i32(read(client, POSITION, 2, sid))
+    check(pos == 0, f"id {sid}: position {pos} at the switch edge")
+
+
 def save(client, timeout):
     """Write settings. Refused with exception 04 while an axis still moves
     (the last axis may still be landing when its position reads the target):
@@ -200,6 +243,9 @@ def check_saved(client):
         check(back == [speed, acc, dec], f"id {sid}: max speed/acc/dec {back} after the restart (saved)")
         pos = i32(read(client, POSITION, 2, sid))
         check(pos == 0, f"id {sid}: position {pos} after the restart")
+    back = read(client, OCD_TH, 1, HOME_SID)[0]
+    check(back == OCD_TH_TUNED, f"id {HOME_SID}: tuned OCD_TH {back} after the restart (saved, re-applied)")
+    check(read(client, END_SWITCH, 1, HOME_SID)[0] == 1, f"id {HOME_SID}: end switch still enabled after the restart")
 
 
 def main():
@@ -230,6 +276,7 @@ def main():
             check_saved(client)
         else:
             move_s = scenario(client, args.move_timeout)
+            extensions(client, args.move_timeout)
             if args.save:
                 save(client, args.move_timeout)
     except Failure as e:

@@ -24,8 +24,17 @@ pub const SYSCLK_HZ: u32 = 168_000_000;
 // Peripherals
 // ---------------------------------------------------------------------------
 
-/// SPI master of the powerSTEP01 daisy chain (on APB2).
+/// SPI master of the powerSTEP01 daisy chain (on APB2). Its bytes move by
+/// DMA2 stream 3 channel 3 (SPI1_TX) and stream 0 channel 3 (SPI1_RX); a
+/// window ends in the `DMA2_STREAM0` interrupt (the `binds =` of the chain
+/// task in `main.rs` must follow). DMA2 itself is [`IoExtTimerDma`]'s
+/// singleton; the chain driver uses only those two streams.
 pub type ChainSpi = pac::SPI1;
+/// Times the chain's CS-high gap (t_disCS) and CS set-up (t_setCS) between
+/// DMA windows, one pulse each (on APB1, 84 MHz timer clock). Its interrupt
+/// is `TIM7` (the `binds =` of the chain's timer task in `main.rs` must
+/// follow this alias). A basic timer: no pins, no DMA request needed.
+pub type ChainGapTimer = pac::TIM7;
 /// Control-loop timer. Its update interrupt is bound to the `control_tick`
 /// task in `main.rs` (`binds = TIM2`: RTIC needs the interrupt's literal name,
 /// so that attribute must follow this alias).
@@ -60,7 +69,8 @@ pub type IoExtTimer = pac::TIM1;
 pub type IoExtSpiDma = pac::DMA1;
 /// DMA2: stream 6 channel 6 = TIM1_CH3 (MOSI table → GPIOB BSRR), stream 2
 /// channel 6 = TIM1_CH2 (GPIOB IDR → MISO samples). Only DMA2 reaches the
-/// GPIO ports (AHB1). The bit engine ends in `DMA2_STREAM2`.
+/// GPIO ports (AHB1). The bit engine ends in `DMA2_STREAM2`. Streams 0 and
+/// 3 belong to the chain ([`ChainSpi`]).
 pub type IoExtTimerDma = pac::DMA2;
 
 // ---------------------------------------------------------------------------
@@ -75,6 +85,9 @@ pub type ChainMiso = gpio::PA6<Alternate<5>>;
 pub type ChainMosi = gpio::PA7<Alternate<5>>;
 /// Chain chip select (software NSS), push-pull, idle high, common to all chips.
 pub type ChainCs = gpio::PA4<Output<PushPull>>;
+/// GPIOA pin number of [`ChainCs`] (the chain driver drives it through
+/// GPIOA_BSRR from its interrupts; it must stay on port A).
+pub const CHAIN_CS_PIN: u8 = 4;
 /// Chain STBY/RESET, push-pull, active low: low holds every chip in reset
 /// (power bridges off). Driven low from `configure` on; until then (reset,
 /// boot) the pin floats, so the board needs a pull-down on STBY to keep the

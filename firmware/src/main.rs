@@ -7,8 +7,10 @@
 //! | task | runs on | priority | owns | shares |
 //! |---|---|---|---|---|
 //! | `init` | reset | – | reset handoff, RCC, SysTick, IWDG, GPIO; starts everything below | – |
+//! | `chain_window_end` | DMA2_STREAM0 | 5 | – | `chain` (SPI1, DMA2 streams 0/3, TIM7, CS) |
+//! | `chain_gap_end` | TIM7 | 5 | – | `chain` |
 //! | `modbus_uart` | USART2 | 4 | – | `rs485` (USART2, DE), `modbus` |
-//! | `control_tick` | TIM2, 1 kHz | 3 | `tick` (TIM2), `watchdog` (IWDG), LED, STBY | `bridge` (chain: SPI1 + CS) |
+//! | `control_tick` | TIM2, 1 kHz | 3 | `tick` (TIM2), `watchdog` (IWDG), LED, STBY | `bridge` (its chain bus: SPI1 + CS, blocking), `chain` |
 //! | `modbus_server` | async | 2 | – | `bridge`, `rs485`, `modbus`, `i2c` |
 //! | `ioext_run` | async | 2 | – | `ioext` (SPI2, TIM1, DMA1/2, PB11/13–15), `bridge` |
 //! | `ioext_spi_end`, `ioext_bit_end` | DMA1_STREAM3, DMA2_STREAM2 | 2 | – | `ioext`, `bridge` |
@@ -16,12 +18,31 @@
 //! | `housekeeping` | async, 10 Hz | 1 | `analog` (ADC1), `store` (FLASH) | `bridge`, `rs485` |
 //! | `usb_hid` | OTG_FS, and pended by every control tick | 1 | `usb` (OTG FS) | `bridge` |
 //!
+//! * `chain_window_end` / `chain_gap_end` run the control tick's chain
+//!   batch (`drivers::chain_spi`): per window TIM7 times the CS-high gap
+//!   (≥ 800 ns) and the CS set-up (≥ 350 ns), DMA2 moves the N bytes, and
+//!   stream 0's transfer-complete raises CS and arms the next window. Tens
+//!   of instructions each (README, "The control tick: rate and cost").
+//!   Highest priority: the windows are the motion's timing and must not
+//!   wait behind the Modbus UART or a bridge lock; they can delay the UART
+//!   task by one of these short handlers (< 1 µs), nothing at the Modbus
+//!   line's scale (t1.5 ≥ 750 µs). The control tick's `chain` locks (start,
+//!   hand-over: ~140 and ~70 instructions) mask both for that long.
 //! * `modbus_uart` stamps each received byte with the monotonic's µs and
 //!   hands it to the Modbus RTU server; the response leaves by TXE/TC
-//!   interrupts with DE high. Highest priority: stamps stay accurate and a
-//!   response never pauses between characters (> t1.5 would break it).
-//! * `control_tick`: `bridge.tick(now)` — one chain batch for every axis —,
-//!   STBY low for good once the bridge declares the chain dead, LED,
+//!   interrupts with DE high. Above everything but the chain's interrupts:
+//!   stamps stay accurate and a response never pauses between characters
+//!   (> t1.5 would break it).
+//! * `control_tick`: `Bridge::tick_pipelined` — one chain batch for every
+//!   axis, by DMA: the batch started by the previous tick is collected
+//!   (`ChainDma::poll`, its rows copied out) and ended (its replies
+//!   absorbed), then this tick is planned and its batch started; the bytes
+//!   shift while the CPU does other work. Batch k's replies are absorbed at
+//!   tick k + 1's start, before batch k + 1 is planned: the blocking
+//!   tick's order, one period later. A batch still on the bus when the
+//!   tick comes skips the tick (an overrun in the diagnostics); one past
+//!   its deadline (2 × nominal + 100 µs) is stopped and ends as a chain
+//!   error. Then STBY low for good once the bridge declares the chain dead, LED,
 //!   watchdog feed, the 10 Hz spawn of `housekeeping`, a pend of `usb_hid`,
 //!   its own duration (DWT; the monotonic under QEMU) into the bridge's
 //!   diagnostics, and the I/O extension's next action
@@ -72,16 +93,20 @@ fn main() {
 #[cfg(target_os = "none")]
 #[rtic::app(device = stm32f4xx_hal::pac, dispatchers = [UART4, UART5, USART6])]
 mod app {
-    use bridge_logic::bridge::{boot_settings, Bridge, ResetCause, ResetTarget, SettingsSource};
+    use bridge_logic::bridge::{
+        boot_settings, BatchState, Bridge, ResetCause, ResetTarget, SettingsSource,
+    };
     use bridge_logic::ioext::{Action, WireBits};
     use bridge_logic::persist::{Store, StoreError, MAX_IMAGE};
     use bridge_logic::postep60::settings::{Settings, IMAGE_LEN};
     use bridge_logic::postep60::Board;
+    use bridge_logic::powerstep::chain::{Frames, MAX_DEVICES, MAX_WINDOWS};
     use bridge_logic::transport::i2c::I2cSlave;
     use bridge_logic::transport::modbus::{RtuServer, Timing};
     use bridge_logic::transport::usb::REPORT_LEN;
     use defmt::{debug, error, info, warn};
     use firmware::board;
+    use firmware::drivers::chain_spi::ChainBuffers;
     use firmware::drivers::clock::{self, Mono};
     use firmware::drivers::i2c_slave::LockedTarget;
     use firmware::drivers::ioext_spi::{IoExtBuffers, IoExtError, Started};
@@ -89,7 +114,7 @@ mod app {
     use firmware::drivers::rs485::{Rs485, Rx};
     use firmware::drivers::usb::Link;
     use firmware::platform::{
-        self, Analog, ChainDriver, I2cSlaveDriver, IoExtDriver, SettingsFlash, Stopwatch,
+        self, Analog, ChainDma, ChainDriver, I2cSlaveDriver, IoExtDriver, SettingsFlash, Stopwatch,
         TickTimer, Usb, Watchdog,
     };
     use rtic::Mutex;
@@ -115,8 +140,12 @@ mod app {
 
     #[shared]
     struct Shared {
-        /// The bridge: chain, axes, PoStep60 models; bus tasks hand it bytes.
+        /// The bridge: chain (its blocking windows), axes, PoStep60 models;
+        /// bus tasks hand it bytes.
         bridge: Bridge<ChainDriver>,
+        /// The chain's batches by DMA: started and collected by the control
+        /// tick, run by the DMA and TIM7 tasks (ceiling 5).
+        chain: ChainDma,
         /// USART2 + DE: the RS-485 line (Modbus UART task and server task).
         rs485: Rs485,
         /// Modbus RTU framing and function codes (same two tasks).
@@ -170,7 +199,10 @@ mod app {
         io_ended_bit: Sender<'static, (), 2>,
     }
 
-    #[init(local = [io_buffers: IoExtBuffers = IoExtBuffers::new()])]
+    #[init(local = [
+        io_buffers: IoExtBuffers = IoExtBuffers::new(),
+        chain_buffers: ChainBuffers = ChainBuffers::new(),
+    ])]
     fn init(cx: init::Context) -> (Shared, Local) {
         let dp = cx.device;
         let mut core = cx.core;
@@ -205,10 +237,12 @@ mod app {
             dp.GPIOB.split(&mut rcc),
             dp.GPIOC.split(&mut rcc),
         );
-        let bus = platform::chain_driver(
+        let (bus, chain) = platform::chain_driver(
             dp.SPI1,
             (pins.chain_sck, pins.chain_miso, pins.chain_mosi),
             pins.chain_cs,
+            dp.TIM7,
+            cx.local.chain_buffers,
             &mut rcc,
         );
 
@@ -293,6 +327,7 @@ mod app {
         (
             Shared {
                 bridge,
+                chain,
                 rs485,
                 modbus: RtuServer::new(timing),
                 i2c,
@@ -358,10 +393,20 @@ mod app {
         }
     }
 
-    /// The control loop: one bridge tick (one chain batch for every axis),
-    /// then STBY, LED, the slow jobs at 10 Hz and a USB poll; the tick's
-    /// duration goes to the bridge's diagnostics.
-    #[task(binds = TIM2, priority = 3, shared = [bridge], local = [tick, ticks, led, stby, watchdog, io_actions, io_pending])]
+    /// The control loop: one bridge tick (one chain batch for every axis,
+    /// pipelined: the previous batch's replies in, this tick's batch out by
+    /// DMA), then STBY, LED, the slow jobs at 10 Hz and a USB poll; the
+    /// tick's duration goes to the bridge's diagnostics.
+    #[task(
+        binds = TIM2,
+        priority = 3,
+        shared = [bridge, chain],
+        local = [
+            tick, ticks, led, stby, watchdog, io_actions, io_pending,
+            rx: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS],
+            chain_failing: bool = false,
+        ]
+    )]
     fn control_tick(mut cx: control_tick::Context) {
         let stopwatch = Stopwatch::start();
         cx.local.tick.acknowledge();
@@ -371,8 +416,24 @@ mod app {
         *cx.local.ticks += 1;
         let ticks = *cx.local.ticks;
         let now = ticks * u64::from(TICK_US) / 1000;
+        // The batch started by the previous tick (its replies copied out of
+        // the DMA buffer; past its deadline it is stopped as a timeout).
+        let now_us = clock::now_us();
+        let rx = cx.local.rx;
+        let previous = cx.shared.chain.lock(|c| c.poll(now_us, rx));
+        if let BatchState::Done(result) = &previous {
+            if let (Err(e), false) = (result, *cx.local.chain_failing) {
+                warn!("chain: batch failed ({})", e);
+            }
+            *cx.local.chain_failing = result.is_err();
+        }
+        // End it, plan this tick, start its batch (Bridge::tick_pipelined);
+        // a batch still on the bus skips the tick as an overrun.
+        let chain = &mut cx.shared.chain;
         let (on, dead, io) = cx.shared.bridge.lock(|b| {
-            b.tick(now);
+            b.tick_pipelined(now, previous, |plan, port| {
+                chain.lock(|c| c.start(plan, port, now_us))
+            });
             (b.led_on(now), b.chain_dead(), b.take_io_action())
         });
         hand_over_io(cx.local.io_actions, cx.local.io_pending, io);
@@ -399,6 +460,21 @@ mod app {
         cx.shared
             .bridge
             .lock(|b| b.tick_timing(duration_us, TICK_US));
+    }
+
+    /// A chain window's bytes are in (DMA2 stream 0, SPI1_RX, transfer
+    /// complete) or a stream failed: CS up, next window armed and its gap
+    /// started, or the batch over (`drivers::chain_spi`).
+    #[task(binds = DMA2_STREAM0, priority = 5, shared = [chain])]
+    fn chain_window_end(mut cx: chain_window_end::Context) {
+        cx.shared.chain.lock(|c| c.on_dma());
+    }
+
+    /// TIM7's one pulse: a chain window's CS-high gap is over (CS down,
+    /// set-up time started) or its set-up time is (bytes out).
+    #[task(binds = TIM7, priority = 5, shared = [chain])]
+    fn chain_gap_end(mut cx: chain_gap_end::Context) {
+        cx.shared.chain.lock(|c| c.on_timer());
     }
 
     /// The I/O extension's actions to `ioext_run`, oldest first; one that

@@ -16,10 +16,10 @@ use stm32f4xx_hal::{ClearFlags, Listen};
 
 use super::ResetCause;
 use crate::board::{
-    self, ChainCs, ChainMiso, ChainMosi, ChainSck, ChainSpi, IoExtCs, IoExtMiso, IoExtMosi,
-    IoExtSck, IoExtSpi, IoExtSpiDma, IoExtTimer, IoExtTimerDma,
+    self, ChainCs, ChainGapTimer, ChainMiso, ChainMosi, ChainSck, ChainSpi, IoExtCs, IoExtMiso,
+    IoExtMosi, IoExtSck, IoExtSpi, IoExtSpiDma, IoExtTimer, IoExtTimerDma,
 };
-use crate::drivers::chain_spi::ChainSpiBus;
+use crate::drivers::chain_spi::{self, ChainBuffers, ChainPort};
 use crate::drivers::flash::{StoreFlash, ERASE_MAX_MS};
 use crate::drivers::ioext_spi::{IoExtBuffers, IoExtPort};
 
@@ -136,17 +136,25 @@ impl TickTimer {
     }
 }
 
-/// The chain's bus: SPI1 and the common CS line.
-pub type ChainDriver = ChainSpiBus;
+/// The chain's bus for the bridge: blocking windows on SPI1 and the common
+/// CS line (chain detection, recovery after a bus error).
+pub type ChainDriver = ChainPort;
 
-/// Start SPI1 for the chain (mode 3, ≤ 4 MHz; see `drivers::chain_spi`).
+/// The control tick's chain driver: each batch of windows by DMA2 (streams
+/// 0 and 3) with TIM7 timing the CS gaps (`drivers::chain_spi`).
+pub use crate::drivers::chain_spi::ChainDma;
+
+/// Start SPI1 for the chain (mode 3, ≤ 4 MHz), TIM7 and DMA2 streams 0/3;
+/// the bridge's half and the control tick's (see `drivers::chain_spi`).
 pub fn chain_driver(
     spi: ChainSpi,
     pins: (ChainSck, ChainMiso, ChainMosi),
     cs: ChainCs,
+    tim: ChainGapTimer,
+    bufs: &'static mut ChainBuffers,
     rcc: &mut Rcc,
-) -> ChainDriver {
-    ChainSpiBus::new(spi, pins, cs, rcc)
+) -> (ChainDriver, ChainDma) {
+    chain_spi::chain_spi(spi, pins, cs, tim, bufs, rcc)
 }
 
 /// The I/O extension's port: SPI2 / TIM1 with DMA1 / DMA2

@@ -14,7 +14,7 @@
 //! | `reset_flags`, `reset_cause` | RCC_CSR flags (then cleared) | 0, [`ResetCause::Unknown`] | RCC not modelled |
 //! | `Watchdog` | IWDG, 6.5 s nominal | does nothing | IWDG not modelled |
 //! | `TickTimer` | TIM2 update at the control rate (HAL) | TIM2 programmed for QEMU's timer model | QEMU's TIM2 ignores the prescaler |
-//! | `ChainDriver` | SPI1 + CS (`drivers::chain_spi`) | 4 simulated powerSTEP01s that live on the monotonic's time | no chips attached |
+//! | `ChainDriver` (the bridge's blocking bus), `ChainDma` (the control tick's batches), `chain_driver` | SPI1 + CS polled; SPI1 by DMA2 streams 0/3, CS gaps by TIM7 (`drivers::chain_spi`) | 4 simulated powerSTEP01s that live on the monotonic's time; `ChainDma` clocks a batch through them at start and reports it over at once | no chips attached, no DMA, no TIM7 |
 //! | `Analog` | ADC1 (`drivers::analog`) | constant 24 V / 25 °C | ADC init reads calibration next to the unique ID, which HardFaults |
 //! | `SettingsFlash` | sectors 10 and 11 (`drivers::flash`) | RAM copy of a host file, written through by semihosting | flash controller not modelled |
 //! | `I2cSlaveDriver` | I2C1 slave (`drivers::i2c_slave`) | takes address changes; I2C1 stays off | I2C transfers hang |

@@ -14,6 +14,11 @@
 //!   CS window, as real chips run on their own oscillator whatever the
 //!   control loop does. The bridge's clock counts ticks, so the two drift
 //!   apart by the timer's 1 %, as a board's MCU and chip oscillators do.
+//!   [`ChainDma`] has the board's DMA driver's API but clocks a batch's
+//!   windows through those chips at once in `start` and hands them over at
+//!   the next `poll`, so the app's pipelined control tick runs unchanged
+//!   (QEMU 7.2 has no DMA controller and no TIM7: the board's DMA path is
+//!   only built here).
 //! * **Settings flash**: [`SettingsFlash`] (`qemu_flash.rs`) keeps the
 //!   store's two erase units in RAM, loaded at boot from a host file and
 //!   written through by semihosting, so settings saved under QEMU survive a
@@ -34,12 +39,12 @@
 // cortex-m-rt's HardFault handler is an `unsafe fn` by contract.
 #![allow(unsafe_code)]
 
-use core::convert::Infallible;
-
+use bridge_logic::bridge::BatchState;
 use bridge_logic::ioext::{Action, WireBits};
 use bridge_logic::postep60::analog::AnalogSample;
+use bridge_logic::powerstep::chain::{Frames, Plan};
 use bridge_logic::powerstep::ChainBus;
-use bridge_logic::sim::{ConsoleCommand, ShiftChain, SimChain};
+use bridge_logic::sim::{ConsoleCommand, HomeCam, ShiftChain, SimChain};
 use bridge_logic::transport::i2c::{I2cSlave, I2cTarget};
 use defmt_semihosting as _;
 use stm32f4xx_hal::pac;
@@ -47,10 +52,11 @@ use stm32f4xx_hal::rcc::{Config, Enable, Rcc, RccExt, Reset};
 
 use super::ResetCause;
 use crate::board::{
-    self, ChainCs, ChainMiso, ChainMosi, ChainSck, ChainSpi, HostI2c, HostI2cScl, HostI2cSda,
-    IoExtCs, IoExtMiso, IoExtMosi, IoExtSck, IoExtSpi, IoExtSpiDma, IoExtTimer, IoExtTimerDma,
-    SenseAdc, SupplySense,
+    self, ChainCs, ChainGapTimer, ChainMiso, ChainMosi, ChainSck, ChainSpi, HostI2c, HostI2cScl,
+    HostI2cSda, IoExtCs, IoExtMiso, IoExtMosi, IoExtSck, IoExtSpi, IoExtSpiDma, IoExtTimer,
+    IoExtTimerDma, SenseAdc, SupplySense,
 };
+use crate::drivers::chain_spi::{ChainBuffers, ChainSpiError};
 use crate::drivers::clock;
 use crate::drivers::ioext_spi::{IoExtBuffers, IoExtError, Started};
 use crate::drivers::usb::Link;
@@ -165,9 +171,10 @@ impl ChainDriver {
 }
 
 impl ChainBus for ChainDriver {
-    type Error = Infallible;
+    /// The board's error type; the simulated chips never fail.
+    type Error = ChainSpiError;
 
-    fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), Infallible> {
+    fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), ChainSpiError> {
         let now = clock::now_us();
         let elapsed_ns = now.saturating_sub(self.last_us).saturating_mul(1_000);
         self.last_us = now;
@@ -177,19 +184,93 @@ impl ChainBus for ChainDriver {
     }
 }
 
-/// The simulated chain instead of SPI1 (which, and whose pins, stay as
-/// `board::configure` left them). Start the monotonic first.
+/// The control tick's chain driver under QEMU: the board driver's API
+/// (`drivers::chain_spi::ChainDma`), the windows clocked through
+/// [`ChainDriver`]'s simulated chips at `start` (module docs).
+pub struct ChainDma {
+    bufs: &'static mut ChainBuffers,
+    /// A batch clocked and not yet handed over: its windows and chips.
+    done: Option<(usize, usize)>,
+}
+
+impl ChainDma {
+    /// Clock the plan's windows through the simulated chips now; the next
+    /// `poll` hands them over.
+    pub fn start(
+        &mut self,
+        plan: &Plan,
+        port: &mut ChainDriver,
+        _now_us: u64,
+    ) -> Result<(), ChainSpiError> {
+        if self.done.is_some() {
+            return Err(ChainSpiError::Busy);
+        }
+        let (windows, n) = (plan.windows(), plan.devices());
+        for (w, row) in self.bufs.rx_mut().iter_mut().enumerate().take(windows) {
+            if let (Some(tx), Some(rx)) = (plan.window(w), row.get_mut(..n)) {
+                port.window(tx, rx)?;
+            }
+        }
+        self.done = Some((windows, n));
+        Ok(())
+    }
+
+    /// The batch clocked at `start` (never running: it ended there).
+    pub fn poll<'a>(&mut self, _now_us: u64, rx: &'a mut Frames) -> BatchState<'a, ChainSpiError> {
+        let Some((windows, n)) = self.done.take() else {
+            return BatchState::Idle;
+        };
+        for (dst, src) in rx.iter_mut().zip(self.bufs.rx_mut().iter()).take(windows) {
+            if let (Some(d), Some(s)) = (dst.get_mut(..n), src.get(..n)) {
+                d.copy_from_slice(s);
+            }
+        }
+        BatchState::Done(Ok(rx))
+    }
+
+    /// No DMA interrupt ever fires under QEMU.
+    pub fn on_dma(&mut self) {}
+
+    /// No TIM7 interrupt ever fires under QEMU.
+    pub fn on_timer(&mut self) {}
+
+    /// Never: a batch ends in `start`.
+    pub fn is_running(&self) -> bool {
+        false
+    }
+}
+
+/// The simulated chain instead of SPI1, TIM7 and DMA2 (which, and whose
+/// pins, stay as `board::configure` left them). Start the monotonic first.
 pub fn chain_driver(
     _spi: ChainSpi,
     _pins: (ChainSck, ChainMiso, ChainMosi),
     _cs: ChainCs,
+    _tim: ChainGapTimer,
+    bufs: &'static mut ChainBuffers,
     _rcc: &mut Rcc,
-) -> ChainDriver {
-    ChainDriver {
-        chain: SimChain::new(AXES),
-        last_us: clock::now_us(),
+) -> (ChainDriver, ChainDma) {
+    let mut chain = SimChain::new(AXES);
+    // The last axis has a home switch: a cam on its shaft presses SW below
+    // HOME_CAM_EDGE microsteps (the end-to-end test homes it over Modbus).
+    if let Some(chip) = chain.device_mut(AXES - 1) {
+        chip.set_home_cam(Some(HomeCam {
+            edge: HOME_CAM_EDGE,
+            nc: false,
+        }));
     }
+    (
+        ChainDriver {
+            chain,
+            last_us: clock::now_us(),
+        },
+        ChainDma { bufs, done: None },
+    )
 }
+
+/// Where the last simulated axis's home switch closes, microsteps (1/128:
+/// 25 full steps below the power-up position).
+pub const HOME_CAM_EDGE: i64 = -3_200;
 
 /// 74HC165s (16 inputs) on the simulated I/O extension port.
 pub const IOEXT_165: usize = 2;

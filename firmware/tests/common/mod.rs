@@ -18,6 +18,7 @@ pub struct Target {
     pub reset_cause: ResetCause,
     pub usart2: pac::USART2,
     pub spi1: pac::SPI1,
+    pub tim7: pac::TIM7,
     pub flash: pac::FLASH,
     pub iwdg: pac::IWDG,
     pub dbgmcu: pac::DBGMCU,
@@ -64,6 +65,7 @@ pub fn setup() -> Target {
         reset_cause,
         usart2: dp.USART2,
         spi1: dp.SPI1,
+        tim7: dp.TIM7,
         flash: dp.FLASH,
         iwdg: dp.IWDG,
         dbgmcu: dp.DBGMCU,
@@ -89,4 +91,36 @@ pub fn cycles_now() -> u32 {
 pub fn spin_us(us: u64) {
     let start = clock::now_us();
     while clock::now_us().saturating_sub(start) < us {}
+}
+
+/// The chain batch of a streaming control tick on `n` chips: every chip
+/// reads ABS_POS back and gets a Run (5 windows of `n` bytes).
+pub fn streaming_plan(n: usize) -> bridge_logic::powerstep::Plan {
+    use bridge_logic::powerstep::{Batch, Command, Direction, Plan, Register};
+    let mut batch = Batch::new(n);
+    for d in 0..n {
+        let _ = batch.push(d, Command::GetParam(Register::AbsPos));
+        let _ = batch.push(d, Command::Run(Direction::Forward, 1_000 + 37 * d as u32));
+    }
+    match Plan::new(&batch) {
+        Ok(plan) => plan,
+        Err(e) => defmt::panic!("streaming plan: {}", e),
+    }
+}
+
+/// The longest batch of 4-byte commands on `n` chips: three per chip
+/// (12 windows of `n` bytes), different bytes in every window.
+pub fn long_plan(n: usize) -> bridge_logic::powerstep::Plan {
+    use bridge_logic::powerstep::{Batch, Command, Direction, Plan};
+    let mut batch = Batch::new(n);
+    for d in 0..n {
+        let k = d as u32;
+        let _ = batch.push(d, Command::Move(Direction::Forward, 0x1_2345 + k * 0x111));
+        let _ = batch.push(d, Command::GoTo(0x2_3456 + 0x222 * d as i32));
+        let _ = batch.push(d, Command::Run(Direction::Reverse, 0x3_4567 + k * 0x333));
+    }
+    match Plan::new(&batch) {
+        Ok(plan) => plan,
+        Err(e) => defmt::panic!("long plan: {}", e),
+    }
 }

@@ -201,9 +201,11 @@ pub mod handoff;
 mod i2c;
 mod io;
 mod modbus;
+mod pipeline;
 mod usb;
 
 pub use ext::ExtError;
+pub use pipeline::{BatchState, PipelinedTick};
 
 pub use usb::STREAM_PERIOD_MS;
 
@@ -560,7 +562,8 @@ impl<B: ChainBus> Bridge<B> {
     ///
     /// The same as [`Bridge::tick_begin`], the plan's windows through the
     /// bus, [`Bridge::tick_end`] — which a driver that clocks the windows by
-    /// DMA calls itself, one tick's end right before the next one's begin.
+    /// DMA calls itself, one tick's end right before the next one's begin
+    /// ([`Bridge::tick_pipelined`] does that).
     pub fn tick(&mut self, now_ms: u64) {
         if !self.models_tick(now_ms) {
             return;

@@ -311,6 +311,13 @@ impl Plan {
         self.tx.get(w).and_then(|row| row.get(..self.devices()))
     }
 
+    /// Every window as a whole row (a DMA driver copies rows): only the
+    /// first [`Plan::devices`] bytes of the first [`Plan::windows`] rows
+    /// are sent ([`Plan::window`] is that part).
+    pub fn frames(&self) -> &Frames {
+        &self.tx
+    }
+
     /// Decode what came back.
     pub fn decode(&self, rx: &Frames) -> Replies {
         let mut replies = Replies::default();
