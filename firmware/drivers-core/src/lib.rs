@@ -25,7 +25,7 @@
 pub mod flash;
 pub mod i2c_slave;
 // pub mod iwdg;
-// pub mod rs485;
+pub mod rs485;
 
 /// One peripheral's registers, named by `R` (an enum of that peripheral's
 /// registers). Each call is exactly one bus access, in program order: a read
