@@ -24,7 +24,7 @@
 
 pub mod flash;
 pub mod i2c_slave;
-// pub mod iwdg;
+pub mod iwdg;
 pub mod rs485;
 
 /// One peripheral's registers, named by `R` (an enum of that peripheral's
