@@ -22,6 +22,7 @@
 #![forbid(unsafe_code)]
 #![warn(missing_debug_implementations)]
 
+pub mod chain_spi;
 pub mod flash;
 pub mod i2c_slave;
 pub mod iwdg;

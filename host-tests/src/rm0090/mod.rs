@@ -22,6 +22,7 @@
 //! flag that never clears, an interrupt that never stops) the model does
 //! too, so a wrong driver fails by its effect on the bus as well.
 
+pub mod chain_spi;
 pub mod flash;
 pub mod i2c;
 pub mod i2c_rig;
