@@ -207,12 +207,12 @@ pub trait ChainHw: Regs<ChainReg> {
 
 /// The batch's memory: the rows the streams read and write.
 pub trait ChainMemory {
-    /// Fill transmit row `w` (read by the transmit stream while the batch
-    /// runs).
-    fn write_tx_row(&mut self, w: usize, row: &[u8; MAX_DEVICES]);
-    /// Receive row `w` (written by the receive stream), once the batch is
-    /// over.
-    fn read_rx_row(&self, w: usize) -> Option<[u8; MAX_DEVICES]>;
+    /// Fill the first `windows` transmit rows from `frames` (read by the
+    /// transmit stream while the batch runs).
+    fn write_tx_rows(&mut self, frames: &Frames, windows: usize);
+    /// Copy the first `windows` receive rows (written by the receive
+    /// stream) into `out`, once the batch is over.
+    fn read_rx_rows(&self, out: &mut Frames, windows: usize);
     /// The bus address of transmit (`rx` false) or receive row `w` (M0AR).
     fn row_address(&self, rx: bool, w: usize) -> Option<u32>;
     /// The bus address of SPI1_DR (PAR).
@@ -601,9 +601,7 @@ impl<H: ChainHw + ChainMemory> ChainDma<H> {
             return Err(ChainSpiError::BadPlan);
         }
         // Whole rows: two words each, no length to check.
-        for (w, src) in plan.frames().iter().enumerate().take(windows) {
-            self.hw.write_tx_row(w, src);
-        }
+        self.hw.write_tx_rows(plan.frames(), windows);
         let hw = &mut self.hw;
         if !(0..SHORT_POLLS).any(|_| {
             hw.read(ChainReg::DmaCr(RX_STREAM)) & DMA_CR_EN == 0
@@ -654,12 +652,7 @@ impl<H: ChainHw + ChainMemory> ChainDma<H> {
                 self.phase = Phase::Idle;
                 match result {
                     Ok(()) => {
-                        let w = usize::from(self.windows);
-                        for (k, dst) in rx.iter_mut().enumerate().take(w) {
-                            if let Some(src) = self.hw.read_rx_row(k) {
-                                *dst = src;
-                            }
-                        }
+                        self.hw.read_rx_rows(rx, usize::from(self.windows));
                         BatchState::Done(Ok(rx))
                     }
                     Err(e) => BatchState::Done(Err(e)),

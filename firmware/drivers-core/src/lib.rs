@@ -4,6 +4,8 @@
 //! on the host against the RM0090 peripheral models in `host-tests`
 //! (`host_tests::rm0090`).
 //!
+//! * [`chain_spi`] — the powerSTEP01 chain: blocking windows on SPI1, and
+//!   batches of windows by DMA2 with CS gaps timed by TIM7.
 //! * [`i2c_slave`] — I2C1 as the PoStep60 I2C slave (interrupt-driven).
 //! * [`flash`] — the settings store's flash sectors through FLASH_KEYR /
 //!   FLASH_SR / FLASH_CR (blocking, as flash programming is on this chip).

@@ -12,7 +12,7 @@
 // why it is sound.
 #![allow(unsafe_code)]
 
-use bridge_logic::powerstep::chain::MAX_DEVICES;
+use bridge_logic::powerstep::chain::Frames;
 use core::sync::atomic::{AtomicBool, Ordering};
 use cortex_m::peripheral::NVIC;
 use drivers_core::chain_spi::{self as core_spi, ChainClocks, ChainHw, ChainMemory, ChainReg};
@@ -32,7 +32,7 @@ pub use drivers_core::chain_spi::{
 /// The blocking half (the bridge's `ChainBus`).
 pub type ChainPort = core_spi::ChainPort<ChainRegs>;
 /// The DMA half (the control tick's batches).
-pub type ChainDma = core_spi::ChainDma<ChainRegs>;
+pub type ChainDma = core_spi::ChainDma<ChainDmaRegs>;
 
 /// Set while a DMA batch owns SPI1 and CS (shared by both halves).
 static BATCH_RUNNING: AtomicBool = AtomicBool::new(false);
@@ -62,106 +62,132 @@ fn tim7() -> &'static pac::tim6::RegisterBlock {
     unsafe { &*pac::TIM7::ptr() }
 }
 
-/// The chain's hardware as the driver's [`ChainHw`]: one per half; the DMA
-/// half's holds the batch buffers.
-pub struct ChainRegs {
-    bufs: Option<&'static mut ChainBuffers>,
+/// The chain's hardware as the blocking half's [`ChainHw`].
+pub struct ChainRegs;
+
+/// The DMA half's: the same registers, and the batch buffers.
+pub struct ChainDmaRegs {
+    bufs: &'static mut ChainBuffers,
 }
 
 impl Regs<ChainReg> for ChainRegs {
     #[inline]
     fn read(&mut self, reg: ChainReg) -> u32 {
-        let (spi, dma, tim) = (spi1(), dma2(), tim7());
-        let st = |n: u8| dma.st(usize::from(n));
-        match reg {
-            ChainReg::SpiCr1 => u32::from(spi.cr1().read().bits()),
-            ChainReg::SpiCr2 => u32::from(spi.cr2().read().bits()),
-            ChainReg::SpiSr => u32::from(spi.sr().read().bits()),
-            ChainReg::SpiDr => u32::from(spi.dr8().read().dr().bits()),
-            ChainReg::DmaLisr => dma.lisr().read().bits(),
-            ChainReg::DmaLifcr => 0,
-            ChainReg::DmaCr(n) => st(n).cr().read().bits(),
-            ChainReg::DmaNdtr(n) => st(n).ndtr().read().bits(),
-            ChainReg::DmaPar(n) => st(n).par().read().bits(),
-            ChainReg::DmaM0ar(n) => st(n).m0ar().read().bits(),
-            ChainReg::DmaFcr(n) => st(n).fcr().read().bits(),
-            ChainReg::TimCr1 => tim.cr1().read().bits(),
-            ChainReg::TimDier => tim.dier().read().bits(),
-            ChainReg::TimSr => tim.sr().read().bits(),
-            ChainReg::TimEgr => 0,
-            ChainReg::TimCnt => tim.cnt().read().bits(),
-            ChainReg::TimPsc => tim.psc().read().bits(),
-            ChainReg::TimArr => tim.arr().read().bits(),
-        }
+        read(reg)
     }
 
     #[inline]
     fn write(&mut self, reg: ChainReg, value: u32) {
-        let (spi, dma, tim) = (spi1(), dma2(), tim7());
-        let st = |n: u8| dma.st(usize::from(n));
-        // SPI1's registers are 16 bits wide (RM0090 §28.5).
-        let v16 = value as u16;
-        // SAFETY: one volatile write of the whole register. The values come
-        // from `drivers_core::chain_spi` (SPI1 mode 3 master, DMA2 streams
-        // 0/3 on channel 3 with PAR = SPI1_DR and M0AR = a row of this
-        // driver's `'static` buffers, TIM7 one-pulse), checked against the
-        // RM0090 model on the host. Only streams 0 and 3 are ever named.
-        unsafe {
-            match reg {
-                ChainReg::SpiCr1 => {
-                    spi.cr1().write(|w| w.bits(v16));
-                }
-                ChainReg::SpiCr2 => {
-                    spi.cr2().write(|w| w.bits(v16));
-                }
-                ChainReg::SpiSr => {
-                    spi.sr().write(|w| w.bits(v16));
-                }
-                ChainReg::SpiDr => {
-                    spi.dr8().write(|w| w.dr().set(value as u8));
-                }
-                ChainReg::DmaLisr => {}
-                ChainReg::DmaLifcr => {
-                    dma.lifcr().write(|w| w.bits(value));
-                }
-                ChainReg::DmaCr(n) => {
-                    st(n).cr().write(|w| w.bits(value));
-                }
-                ChainReg::DmaNdtr(n) => {
-                    st(n).ndtr().write(|w| w.bits(value));
-                }
-                ChainReg::DmaPar(n) => {
-                    st(n).par().write(|w| w.bits(value));
-                }
-                ChainReg::DmaM0ar(n) => {
-                    st(n).m0ar().write(|w| w.bits(value));
-                }
-                ChainReg::DmaFcr(n) => {
-                    st(n).fcr().write(|w| w.bits(value));
-                }
-                ChainReg::TimCr1 => {
-                    tim.cr1().write(|w| w.bits(value));
-                }
-                ChainReg::TimDier => {
-                    tim.dier().write(|w| w.bits(value));
-                }
-                ChainReg::TimSr => {
-                    tim.sr().write(|w| w.bits(value));
-                }
-                ChainReg::TimEgr => {
-                    tim.egr().write(|w| w.bits(value));
-                }
-                ChainReg::TimCnt => {
-                    tim.cnt().write(|w| w.bits(value));
-                }
-                ChainReg::TimPsc => {
-                    tim.psc().write(|w| w.bits(value));
-                }
-                ChainReg::TimArr => {
-                    tim.arr().write(|w| w.bits(value));
-                }
-            };
-        }
+        write(reg, value);
+    }
+}
+
+impl Regs<ChainReg> for ChainDmaRegs {
+    #[inline]
+    fn read(&mut self, reg: ChainReg) -> u32 {
+        read(reg)
+    }
+
+    #[inline]
+    fn write(&mut self, reg: ChainReg, value: u32) {
+        write(reg, value);
+    }
+}
+
+/// One read of the chain register `reg`.
+#[inline]
+fn read(reg: ChainReg) -> u32 {
+    let (spi, dma, tim) = (spi1(), dma2(), tim7());
+    let st = |n: u8| dma.st(usize::from(n));
+    match reg {
+        ChainReg::SpiCr1 => u32::from(spi.cr1().read().bits()),
+        ChainReg::SpiCr2 => u32::from(spi.cr2().read().bits()),
+        ChainReg::SpiSr => u32::from(spi.sr().read().bits()),
+        ChainReg::SpiDr => u32::from(spi.dr8().read().dr().bits()),
+        ChainReg::DmaLisr => dma.lisr().read().bits(),
+        ChainReg::DmaLifcr => 0,
+        ChainReg::DmaCr(n) => st(n).cr().read().bits(),
+        ChainReg::DmaNdtr(n) => st(n).ndtr().read().bits(),
+        ChainReg::DmaPar(n) => st(n).par().read().bits(),
+        ChainReg::DmaM0ar(n) => st(n).m0ar().read().bits(),
+        ChainReg::DmaFcr(n) => st(n).fcr().read().bits(),
+        ChainReg::TimCr1 => tim.cr1().read().bits(),
+        ChainReg::TimDier => tim.dier().read().bits(),
+        ChainReg::TimSr => tim.sr().read().bits(),
+        ChainReg::TimEgr => 0,
+        ChainReg::TimCnt => tim.cnt().read().bits(),
+        ChainReg::TimPsc => tim.psc().read().bits(),
+        ChainReg::TimArr => tim.arr().read().bits(),
+    }
+}
+
+/// One write of `value` to the chain register `reg`.
+#[inline]
+fn write(reg: ChainReg, value: u32) {
+    let (spi, dma, tim) = (spi1(), dma2(), tim7());
+    let st = |n: u8| dma.st(usize::from(n));
+    // SPI1's registers are 16 bits wide (RM0090 §28.5).
+    let v16 = value as u16;
+    // SAFETY: one volatile write of the whole register. The values come
+    // from `drivers_core::chain_spi` (SPI1 mode 3 master, DMA2 streams
+    // 0/3 on channel 3 with PAR = SPI1_DR and M0AR = a row of this
+    // driver's `'static` buffers, TIM7 one-pulse), checked against the
+    // RM0090 model on the host. Only streams 0 and 3 are ever named.
+    unsafe {
+        match reg {
+            ChainReg::SpiCr1 => {
+                spi.cr1().write(|w| w.bits(v16));
+            }
+            ChainReg::SpiCr2 => {
+                spi.cr2().write(|w| w.bits(v16));
+            }
+            ChainReg::SpiSr => {
+                spi.sr().write(|w| w.bits(v16));
+            }
+            ChainReg::SpiDr => {
+                spi.dr8().write(|w| w.dr().set(value as u8));
+            }
+            ChainReg::DmaLisr => {}
+            ChainReg::DmaLifcr => {
+                dma.lifcr().write(|w| w.bits(value));
+            }
+            ChainReg::DmaCr(n) => {
+                st(n).cr().write(|w| w.bits(value));
+            }
+            ChainReg::DmaNdtr(n) => {
+                st(n).ndtr().write(|w| w.bits(value));
+            }
+            ChainReg::DmaPar(n) => {
+                st(n).par().write(|w| w.bits(value));
+            }
+            ChainReg::DmaM0ar(n) => {
+                st(n).m0ar().write(|w| w.bits(value));
+            }
+            ChainReg::DmaFcr(n) => {
+                st(n).fcr().write(|w| w.bits(value));
+            }
+            ChainReg::TimCr1 => {
+                tim.cr1().write(|w| w.bits(value));
+            }
+            ChainReg::TimDier => {
+                tim.dier().write(|w| w.bits(value));
+            }
+            ChainReg::TimSr => {
+                tim.sr().write(|w| w.bits(value));
+            }
+            ChainReg::TimEgr => {
+                tim.egr().write(|w| w.bits(value));
+            }
+            ChainReg::TimCnt => {
+                tim.cnt().write(|w| w.bits(value));
+            }
+            ChainReg::TimPsc => {
+                tim.psc().write(|w| w.bits(value));
+            }
+            ChainReg::TimArr => {
+                tim.arr().write(|w| w.bits(value));
+            }
+        };
     }
 }
 
@@ -203,20 +229,66 @@ impl ChainHw for ChainRegs {
     }
 }
 
-impl ChainMemory for ChainRegs {
-    fn write_tx_row(&mut self, w: usize, row: &[u8; MAX_DEVICES]) {
-        if let Some(dst) = self.bufs.as_mut().and_then(|b| b.tx.get_mut(w)) {
-            *dst = *row;
+impl ChainHw for ChainDmaRegs {
+    #[inline]
+    fn cs(&mut self, high: bool) {
+        // SAFETY: GPIOA is always mapped; BSRR writes are atomic and touch
+        // only the bit written. The CS pin's HAL handle was consumed by
+        // `chain_spi` (configured as a push-pull output, high); nothing else
+        // drives it.
+        let gpioa = unsafe { &*pac::GPIOA::ptr() };
+        gpioa.bsrr().write(|w| {
+            if high {
+                w.bs(CHAIN_CS_PIN).set_bit()
+            } else {
+                w.br(CHAIN_CS_PIN).set_bit()
+            }
+        });
+    }
+
+    #[inline]
+    fn delay_cycles(&mut self, cycles: u32) {
+        cortex_m::asm::delay(cycles);
+    }
+
+    fn unpend_interrupts(&mut self) {
+        NVIC::unpend(Interrupt::TIM7);
+        NVIC::unpend(Interrupt::DMA2_STREAM0);
+    }
+
+    #[inline]
+    fn batch_running(&self) -> bool {
+        BATCH_RUNNING.load(Ordering::Acquire)
+    }
+
+    #[inline]
+    fn set_batch_running(&mut self, running: bool) {
+        BATCH_RUNNING.store(running, Ordering::Release);
+    }
+}
+
+impl ChainMemory for ChainDmaRegs {
+    #[inline]
+    fn write_tx_rows(&mut self, frames: &Frames, windows: usize) {
+        for (dst, src) in self.bufs.tx.iter_mut().zip(frames).take(windows) {
+            *dst = *src;
         }
     }
 
-    fn read_rx_row(&self, w: usize) -> Option<[u8; MAX_DEVICES]> {
-        self.bufs.as_ref().and_then(|b| b.rx.get(w)).copied()
+    #[inline]
+    fn read_rx_rows(&self, out: &mut Frames, windows: usize) {
+        for (dst, src) in out.iter_mut().zip(&self.bufs.rx).take(windows) {
+            *dst = *src;
+        }
     }
 
+    #[inline]
     fn row_address(&self, rx: bool, w: usize) -> Option<u32> {
-        let bufs = self.bufs.as_ref()?;
-        let row = if rx { bufs.rx.get(w)? } else { bufs.tx.get(w)? };
+        let row = if rx {
+            self.bufs.rx.get(w)?
+        } else {
+            self.bufs.tx.get(w)?
+        };
         // RAM addresses fit in 32 bits on the Cortex-M4.
         Some(row.as_ptr() as usize as u32)
     }
@@ -251,9 +323,5 @@ pub fn chain_spi(
     // The pins keep the modes `board::configure` gave them; from here on
     // SPI1, TIM7 and CS are driven through their registers (module docs).
     let _ = (spi, pins, cs_pin, tim);
-    core_spi::chain_spi(
-        ChainRegs { bufs: None },
-        ChainRegs { bufs: Some(bufs) },
-        clocks,
-    )
+    core_spi::chain_spi(ChainRegs, ChainDmaRegs { bufs }, clocks)
 }

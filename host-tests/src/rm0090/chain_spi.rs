@@ -36,7 +36,7 @@
 use std::cell::{Ref, RefCell, RefMut};
 use std::rc::Rc;
 
-use bridge_logic::powerstep::chain::{MAX_DEVICES, MAX_WINDOWS};
+use bridge_logic::powerstep::chain::{Frames, MAX_DEVICES, MAX_WINDOWS};
 use bridge_logic::sim::SimChain;
 use drivers_core::chain_spi::bits::*;
 use drivers_core::chain_spi::{
@@ -744,14 +744,18 @@ impl ChainHw for ChainHandle {
 }
 
 impl ChainMemory for ChainHandle {
-    fn write_tx_row(&mut self, w: usize, row: &[u8; MAX_DEVICES]) {
-        if let Some(dst) = self.0.borrow_mut().mem.tx.get_mut(w) {
-            *dst = *row;
+    fn write_tx_rows(&mut self, frames: &Frames, windows: usize) {
+        let mut m = self.0.borrow_mut();
+        for (dst, src) in m.mem.tx.iter_mut().zip(frames).take(windows) {
+            *dst = *src;
         }
     }
 
-    fn read_rx_row(&self, w: usize) -> Option<[u8; MAX_DEVICES]> {
-        self.0.borrow().mem.rx.get(w).copied()
+    fn read_rx_rows(&self, out: &mut Frames, windows: usize) {
+        let m = self.0.borrow();
+        for (dst, src) in out.iter_mut().zip(&m.mem.rx).take(windows) {
+            *dst = *src;
+        }
     }
 
     fn row_address(&self, rx: bool, w: usize) -> Option<u32> {

@@ -6,6 +6,8 @@
 //! which flag, in which order, when SCL is stretched, what an interrupt line
 //! shows.
 //!
+//! * [`chain_spi`] — SPI1 as the chain's master (§28), DMA2 streams 0/3
+//!   (§10), TIM7 (§20) and the CS line, with the simulated chips on MISO.
 //! * [`i2c`] — I2C1 in slave mode (§27), with [`i2c_rig`]: a simulated
 //!   master and the NVIC's order of the two I2C interrupts.
 //! * [`flash`] — the flash interface (§3): unlock keys, sector erase,
