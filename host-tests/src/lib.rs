@@ -1,6 +1,7 @@
 //! Harnesses around the simulated hardware in `bridge_logic::sim`, shared by
 //! the scenario tests in `tests/`, the plot and the benchmark binaries.
 
+pub mod ext_fuzz;
 pub mod i2c_bench;
 pub mod modbus_bench;
 pub mod rig;

@@ -241,6 +241,7 @@ pub const CHAIN_DEAD_TICKS: u32 = 10;
 pub const I2C_ADDRESS_MAX: u8 = 127;
 
 /// The bridge.
+#[derive(Clone)]
 pub struct Bridge<B: ChainBus> {
     chain: Chain<B>,
     group: AxisGroup,
