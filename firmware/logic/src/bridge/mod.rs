@@ -403,6 +403,12 @@ impl<B: ChainBus> Bridge<B> {
         &self.chain
     }
 
+    /// The chain's bus back, the bridge gone (the firmware builds the bridge
+    /// again when the chain it found needs a slower tick: `rate::fit`).
+    pub fn into_bus(self) -> B {
+        self.chain.into_bus()
+    }
+
     pub fn chain_mut(&mut self) -> &mut Chain<B> {
         &mut self.chain
     }
