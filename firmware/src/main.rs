@@ -126,13 +126,11 @@ mod app {
 
     /// Control-loop rate: the build setting `STEPBRIDGE_TICK_HZ` (default
     /// 1 kHz; `bridge_logic::rate`).
-    use bridge_logic::rate::{TICK_HZ, TICK_US};
+    use bridge_logic::rate::{self, Rate, TICK_HZ, TICK_US};
     /// STBY/RESET low time at power-up (datasheet minimum is well below).
     const RESET_PULSE_MS: u32 = 1;
     /// Wait after releasing STBY/RESET before the first SPI byte.
     const WAKE_UP_MS: u32 = 20;
-    /// Housekeeping (ADC, pending save, reset) every this many ticks (10 Hz).
-    const HOUSEKEEPING_TICKS: u64 = TICK_HZ as u64 / 10;
     /// I/O extension actions in flight from the control tick to `ioext_run`
     /// (the bridge hands out at most one per tick, and none while its
     /// transfer runs).
@@ -169,6 +167,9 @@ mod app {
         tick: TickTimer,
         /// Control ticks since boot (the bridge's ms clock is derived from it).
         ticks: u64,
+        /// The tick rate in use (`rate::fit`: the build setting, or slower
+        /// for a chain that does not fit it).
+        rate: Rate,
         /// Status LED (pattern decided by the bridge).
         led: board::StatusLed,
         /// Chain STBY/RESET, released (high) by `init`: driven low and given
@@ -259,6 +260,25 @@ mod app {
             None => info!("chain: {=usize} powerSTEP01", bridge.axes()),
             Some(e) => error!("chain: detection failed ({}), running with 0 axes", e),
         }
+        // A chain whose batch and computation do not fit the build's tick
+        // runs at a slower one (a skipped tick would run the motors slow).
+        let rate = rate::fit(TICK_HZ, bridge.axes());
+        if rate.derated {
+            warn!(
+                "control tick: {=u32} Hz instead of {=u32} Hz: {=usize} chips need {=u64} us per tick",
+                rate.hz,
+                TICK_HZ,
+                bridge.axes(),
+                rate::tick_need_ns(bridge.axes()) / 1000
+            );
+            bridge = Bridge::new(
+                bridge.into_bus(),
+                Board::REFERENCE,
+                settings,
+                source,
+                rate.us,
+            );
+        }
         bridge.set_reset_cause(ResetCause::from_rcc_csr(reset_flags));
         bridge.set_build_id(firmware::BUILD_ID);
         let uid = platform::unique_id();
@@ -310,7 +330,7 @@ mod app {
         bridge.on_analog(analog.sample());
 
         let mut tick = TickTimer::new(dp.TIM2, &mut rcc);
-        if let Err(e) = tick.start(TICK_HZ) {
+        if let Err(e) = tick.start(rate.hz) {
             error!("control timer: start failed ({}), no control loop", e);
         }
         if modbus_server::spawn().is_err() {
@@ -337,6 +357,7 @@ mod app {
             Local {
                 tick,
                 ticks: 0,
+                rate,
                 led: pins.led,
                 stby: Some(stby),
                 watchdog,
@@ -402,7 +423,7 @@ mod app {
         priority = 3,
         shared = [bridge, chain],
         local = [
-            tick, ticks, led, stby, watchdog, io_actions, io_pending,
+            tick, ticks, rate, led, stby, watchdog, io_actions, io_pending,
             rx: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS],
             chain_failing: bool = false,
         ]
@@ -415,7 +436,8 @@ mod app {
         // share one.
         *cx.local.ticks += 1;
         let ticks = *cx.local.ticks;
-        let now = ticks * u64::from(TICK_US) / 1000;
+        let rate = *cx.local.rate;
+        let now = ticks * u64::from(rate.us) / 1000;
         // The batch started by the previous tick (its replies copied out of
         // the DMA buffer; past its deadline it is stopped as a timeout).
         let now_us = clock::now_us();
@@ -448,7 +470,7 @@ mod app {
             }
         }
         cx.local.led.set_state(on.into());
-        if ticks % HOUSEKEEPING_TICKS == 0 {
+        if ticks % (u64::from(rate.hz) / 10).max(1) == 0 {
             // Still busy with the previous round: skip this one.
             let _ = housekeeping::spawn();
         }
@@ -459,7 +481,7 @@ mod app {
         // Free: this task's priority is the bridge's ceiling.
         cx.shared
             .bridge
-            .lock(|b| b.tick_timing(duration_us, TICK_US));
+            .lock(|b| b.tick_timing(duration_us, rate.us));
     }
 
     /// A chain window's bytes are in (DMA2 stream 0, SPI1_RX, transfer

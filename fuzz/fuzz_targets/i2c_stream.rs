@@ -17,7 +17,7 @@ use libfuzzer_sys::fuzz_target;
 const MOTION: [u8; 8] = [0x50, 0x54, 0x05, 0x55, 0x71, 0x5E, 0x70, 0x73];
 
 fuzz_target!(|data: &[u8]| {
-    let mut b = I2cBench::new(2, Settings::FACTORY);
+    let mut b = host_tests::sim_bridge::template(|| I2cBench::new(2, Settings::FACTORY));
     let mut moved_by_command = false;
     let mut it = data.iter().copied();
     while let Some(tag) = it.next() {

@@ -10,6 +10,7 @@ use bridge_logic::transport::i2c::{I2cSlave, Which};
 pub use crate::sim_bridge::TICK_US;
 
 /// Bridge + simulated chain + I2C bus + virtual clock.
+#[derive(Clone)]
 pub struct I2cBench {
     pub bridge: Bridge<SimChain>,
     pub slave: I2cSlave,

@@ -1,10 +1,12 @@
 //! Harnesses around the simulated hardware in `bridge_logic::sim`, shared by
 //! the scenario tests in `tests/`, the plot and the benchmark binaries.
 
+pub mod ext_fuzz;
 pub mod i2c_bench;
 pub mod modbus_bench;
 pub mod rig;
 pub mod rm0090;
+pub mod rng;
 pub mod sim_bridge;
 pub mod svg;
 pub mod usb_bench;

@@ -9,27 +9,12 @@ use bridge_logic::powerstep::registers::{sign_extend_22, wrap_22};
 use bridge_logic::powerstep::{DriveMode, StepSel};
 use bridge_logic::sim::{Fault, SimClock, SimControl};
 use host_tests::rig::Rig;
+use host_tests::rng::Rng;
 
 /// The build setting `STEPBRIDGE_TICK_HZ` (CI runs this file at 1, 2 and 5 kHz).
 const TICK_US: u32 = bridge_logic::rate::TICK_US;
 
 /// xorshift64*: deterministic, seedable, no dependency.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n.max(1)
-    }
-    fn range(&mut self, lo: i64, hi: i64) -> i64 {
-        lo + self.below((hi - lo) as u64 + 1) as i64
-    }
-}
-
 fn cfg(logical_shift: u8, step: StepSel, drive: DriveMode) -> AxisConfig {
     AxisConfig {
         tick_us: TICK_US,

@@ -18,6 +18,7 @@ use bridge_logic::postep60::{Board, Query, Request, Settings, Value};
 use bridge_logic::powerstep::registers::{sign_extend_22, wrap_22, Register};
 use bridge_logic::powerstep::Command;
 use bridge_logic::sim::{Fault, SimChain, SimClock};
+use host_tests::rng::Rng;
 use host_tests::sim_bridge::{chip, chip_mut, new_bridge_at, TICK_US};
 
 const BOARD: Board = Board::REFERENCE;
@@ -25,22 +26,6 @@ const BOARD: Board = Board::REFERENCE;
 const MICRO: f64 = 128.0;
 
 /// xorshift64*: deterministic, seedable, no dependency.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n.max(1)
-    }
-    fn range(&mut self, lo: i64, hi: i64) -> i64 {
-        lo + self.below((hi - lo) as u64 + 1) as i64
-    }
-}
-
 /// Where the last accepted command says an axis ends up.
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Expect {

@@ -19,6 +19,7 @@ use bridge_logic::postep60::{Board, Query, Request, Settings, Value};
 use bridge_logic::powerstep::chain::{ChainBus, Frames, Plan, MAX_DEVICES, MAX_WINDOWS};
 use bridge_logic::powerstep::registers::{sign_extend_22, wrap_22};
 use bridge_logic::sim::SimChain;
+use host_tests::rng::Rng;
 use host_tests::sim_bridge::{all_settled, chip, new_bridge, TICK_US};
 
 const BOARD: Board = Board::REFERENCE;
@@ -141,22 +142,6 @@ enum Expect {
 }
 
 /// xorshift64*: deterministic, seedable.
-struct Rng(u64);
-impl Rng {
-    fn next(&mut self) -> u64 {
-        self.0 ^= self.0 >> 12;
-        self.0 ^= self.0 << 25;
-        self.0 ^= self.0 >> 27;
-        self.0.wrapping_mul(0x2545_F491_4F6C_DD1D)
-    }
-    fn below(&mut self, n: u64) -> u64 {
-        self.next() % n.max(1)
-    }
-    fn range(&mut self, lo: i64, hi: i64) -> i64 {
-        lo + self.below((hi - lo) as u64 + 1) as i64
-    }
-}
-
 struct Oracle {
     expect: Vec<Expect>,
     mode: Vec<u8>,

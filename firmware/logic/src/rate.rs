@@ -53,3 +53,129 @@ mod tests {
         assert_eq!(parse("1000"), 1000);
     }
 }
+
+/// The control-tick rate the firmware runs at for a chain of `chips`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Rate {
+    pub hz: u32,
+    /// The period, µs (a whole number).
+    pub us: u32,
+    /// Slower than the build setting: the chain's batch and the tick's
+    /// computation would not fit its period.
+    pub derated: bool,
+}
+
+/// SPI1 clock of the chain (APB2 84 MHz / 32).
+pub const CHAIN_SPI_HZ: u64 = 2_625_000;
+/// CS windows of a streaming batch (a read and a Run per axis).
+pub const STREAM_WINDOWS: u64 = 5;
+/// Per window besides the bytes: ≥ 800 ns CS high, ≥ 350 ns set-up (the
+/// DMA driver's TIM7 phases, 821 + 369 ns) and ~1 µs of interrupt latency.
+pub const WINDOW_OVERHEAD_NS: u64 = 2_190;
+/// The tick's computation per axis and its fixed part, ns at 168 MHz
+/// (`scripts/tick-cpu`: 14 752 cycles for 8 axes streaming incl. flash wait
+/// states ≈ 11 µs per axis; the driver's start and hand-over ≈ 3 µs).
+pub const COMPUTE_NS_PER_AXIS: u64 = 11_000;
+pub const COMPUTE_NS_FIXED: u64 = 5_000;
+/// Share of the period the batch and the computation may take (the rest is
+/// for the bus tasks and interrupt latency).
+pub const BUDGET_PERCENT: u64 = 90;
+
+/// Time one streaming tick needs with `chips` on the chain, ns: the
+/// computation before the batch starts, then the batch on the bus (the
+/// pipelined tick absorbs the replies at the next tick).
+pub const fn tick_need_ns(chips: usize) -> u64 {
+    let n = chips as u64;
+    let bytes_ns = n * 8 * 1_000_000_000 / CHAIN_SPI_HZ;
+    COMPUTE_NS_FIXED + n * COMPUTE_NS_PER_AXIS + STREAM_WINDOWS * (bytes_ns + WINDOW_OVERHEAD_NS)
+}
+
+/// The fastest rate at most `hz` whose period holds a streaming tick of
+/// `chips` within [`BUDGET_PERCENT`], halving from `hz` (a period that
+/// stays a whole number of µs), down to 500 Hz. A tick that does not fit
+/// is skipped as an overrun, and every skipped tick is a tick of time the
+/// profile loses: a box must not run its motors slow, so it runs slower
+/// ticks instead and says so.
+pub const fn fit(hz: u32, chips: usize) -> Rate {
+    let need = tick_need_ns(chips);
+    let mut h = hz;
+    loop {
+        let us = 1_000_000 / h;
+        let fits = need * 100 <= (us as u64) * 1000 * BUDGET_PERCENT;
+        let next = h / 2;
+        if fits || next < 500 || 1_000_000 % next != 0 {
+            return Rate {
+                hz: h,
+                us,
+                derated: h != hz,
+            };
+        }
+        h = next;
+    }
+}
+
+#[cfg(test)]
+mod fit_tests {
+    use super::*;
+
+    #[test]
+    fn eight_chips_fit_1_and_2_khz() {
+        assert_eq!(
+            fit(1000, 8),
+            Rate {
+                hz: 1000,
+                us: 1000,
+                derated: false
+            }
+        );
+        assert_eq!(
+            fit(2000, 8),
+            Rate {
+                hz: 2000,
+                us: 500,
+                derated: false
+            }
+        );
+    }
+
+    #[test]
+    fn eight_chips_at_5_khz_run_at_2_5_khz() {
+        // 5 k + 88 k + 5 · (24 381 + 2 190) ≈ 226 µs > 90 % of 200 µs.
+        assert!(tick_need_ns(8) > 180_000);
+        assert_eq!(
+            fit(5000, 8),
+            Rate {
+                hz: 2500,
+                us: 400,
+                derated: true
+            }
+        );
+    }
+
+    #[test]
+    fn four_chips_fit_5_khz() {
+        assert!(tick_need_ns(4) <= 180_000);
+        assert_eq!(
+            fit(5000, 4),
+            Rate {
+                hz: 5000,
+                us: 200,
+                derated: false
+            }
+        );
+    }
+
+    #[test]
+    fn no_chain_never_derates() {
+        assert_eq!(fit(10_000, 0).hz, 10_000);
+    }
+
+    #[test]
+    fn a_rate_that_cannot_halve_to_a_whole_period_stays() {
+        // 10 kHz with 8 chips: 5 kHz no, 2.5 kHz yes.
+        assert_eq!(fit(10_000, 8).hz, 2500);
+        // 500 Hz is the floor.
+        assert_eq!(fit(500, 8).hz, 500);
+    }
+}

@@ -18,7 +18,12 @@
 //!
 //! Each model's module doc lists its rules with the RM0090 section each one
 //! comes from, and marks UNCONFIRMED what the manual does not say (or what
-//! could not be checked against it here). A model records what RM0090 calls
+//! could not be checked against it here). RM0090 itself is not in this
+//! repository: the rules and section numbers were written from the manual
+//! as known; of its text, only the flash erase/program sequences and their
+//! errors (§3.5.3, §3.5.4) were checked against a copy while writing them,
+//! so every other section number is UNCONFIRMED as to its exact numbering
+//! (the rules themselves are the manual's, and the tests pin them down). A model records what RM0090 calls
 //! undefined or forbidden as a *violation* (`violations()`), and the tests
 //! assert there are none; what the silicon would do anyway (a lost byte, a
 //! flag that never clears, an interrupt that never stops) the model does

@@ -241,6 +241,7 @@ pub const CHAIN_DEAD_TICKS: u32 = 10;
 pub const I2C_ADDRESS_MAX: u8 = 127;
 
 /// The bridge.
+#[derive(Clone)]
 pub struct Bridge<B: ChainBus> {
     chain: Chain<B>,
     group: AxisGroup,
@@ -400,6 +401,12 @@ impl<B: ChainBus> Bridge<B> {
 
     pub fn chain(&self) -> &Chain<B> {
         &self.chain
+    }
+
+    /// The chain's bus back, the bridge gone (the firmware builds the bridge
+    /// again when the chain it found needs a slower tick: `rate::fit`).
+    pub fn into_bus(self) -> B {
+        self.chain.into_bus()
     }
 
     pub fn chain_mut(&mut self) -> &mut Chain<B> {

@@ -47,7 +47,9 @@ pub type Frames = [[u8; MAX_DEVICES]; MAX_WINDOWS];
 /// The chip-select/SPI transfer the chain runs on. The firmware implements it
 /// on SPI1 + a CS GPIO; the simulator implements it on a model chain.
 pub trait ChainBus {
-    type Error;
+    /// (Clone: a bridge on a simulated chain can be cloned, e.g. by the
+    /// fuzz targets, which start every input from one configured bridge.)
+    type Error: Clone;
     /// One CS-low window: shift out `tx` (`tx[0]` first), store what comes
     /// back in `rx` (same length), then raise CS for at least 800 ns.
     fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), Self::Error>;
@@ -433,6 +435,7 @@ pub fn length_from_echo(tx: &[u8], rx: &[u8]) -> Option<usize> {
 }
 
 /// The one owner of the chain.
+#[derive(Clone)]
 pub struct Chain<B: ChainBus> {
     bus: B,
     n: u8,
@@ -468,6 +471,12 @@ impl<B: ChainBus> Chain<B> {
 
     pub fn bus(&self) -> &B {
         &self.bus
+    }
+
+    /// Give the bus back (e.g. to build the bridge again at another tick
+    /// rate once the chain's length is known).
+    pub fn into_bus(self) -> B {
+        self.bus
     }
 
     pub fn bus_mut(&mut self) -> &mut B {

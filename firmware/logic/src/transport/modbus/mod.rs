@@ -305,6 +305,7 @@ impl Frame {
 }
 
 /// The Modbus RTU server of the bridge: one per serial line.
+#[derive(Clone)]
 pub struct RtuServer {
     timing: Timing,
     /// Frame in progress.
