@@ -567,14 +567,15 @@ fn a_chip_oscillator_5_percent_off_is_learned_while_cruising_and_followed_exactl
     t.request(1, Request::SetPosition(-20_000));
     t.run(500);
     let ratio = |t: &Truth, k: usize| t.bridge.axis(k).expect("axis").clock_ratio_q16();
-    // 1.05 and 0.95 in Q16 are 68 813 and 62 259.
+    // 1.05 and 0.95 in Q16 are 68 813 and 62 259; a window resolves one
+    // microstep, so the estimate dithers by ~0.1 % (64 in Q16).
     assert!(
-        (ratio(&t, 0) as i64 - 68_813).abs() <= 16,
+        (ratio(&t, 0) as i64 - 68_813).abs() <= 80,
         "{}",
         ratio(&t, 0)
     );
     assert!(
-        (ratio(&t, 1) as i64 - 62_259).abs() <= 16,
+        (ratio(&t, 1) as i64 - 62_259).abs() <= 80,
         "{}",
         ratio(&t, 1)
     );
