@@ -5,6 +5,7 @@ pub mod ext_fuzz;
 pub mod i2c_bench;
 pub mod modbus_bench;
 pub mod rig;
+pub mod rm0090;
 pub mod rng;
 pub mod sim_bridge;
 pub mod svg;

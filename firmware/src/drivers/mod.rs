@@ -14,6 +14,7 @@ pub mod clock;
 pub mod flash;
 pub mod i2c_slave;
 pub mod ioext_spi;
+pub mod iwdg;
 pub mod mcu;
 pub mod rs485;
 pub mod usb;

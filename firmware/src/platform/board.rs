@@ -7,11 +7,9 @@
 
 use defmt_rtt as _;
 use stm32f4xx_hal::pac;
-use stm32f4xx_hal::prelude::_fugit_ExtU32 as _;
 use stm32f4xx_hal::rcc::{Config, Rcc, RccExt};
 use stm32f4xx_hal::time::Hertz;
 use stm32f4xx_hal::timer::{CounterHz, Event, Flag, TimerExt};
-use stm32f4xx_hal::watchdog::IndependentWatchdog;
 use stm32f4xx_hal::{ClearFlags, Listen};
 
 use super::ResetCause;
@@ -78,23 +76,26 @@ pub fn reset_cause(rcc: &pac::RCC) -> ResetCause {
     cause
 }
 
-/// The independent watchdog, fed by every control tick.
-pub struct Watchdog(IndependentWatchdog);
+/// The independent watchdog, fed by every control tick
+/// (`drivers_core::iwdg` on `pac::IWDG`).
+pub struct Watchdog(drivers_core::iwdg::Watchdog<crate::drivers::iwdg::IwdgPeripheral>);
 
 impl Watchdog {
-    /// Timeout, nominal (the HAL assumes a 32 kHz LSI). The LSI of the
-    /// STM32F405 runs anywhere from 17 to 47 kHz (datasheet), so the real
-    /// timeout is 0.68 to 1.88 times this: 6.5 s nominal is at least 4.4 s,
-    /// longer than the worst-case sector erase (a shorter one would reset
-    /// the MCU in the middle of a settings save), and at most 12.2 s.
+    /// Timeout, nominal (a 32 kHz LSI). The LSI of the STM32F405 runs
+    /// anywhere from 17 to 47 kHz (datasheet), so the real timeout is 0.68
+    /// to 1.88 times this: 6.5 s nominal is at least 4.4 s, longer than the
+    /// worst-case sector erase (a shorter one would reset the MCU in the
+    /// middle of a settings save), and at most 12.2 s.
     pub const TIMEOUT_MS: u32 = 6_500;
 
     /// Start the IWDG (it cannot be stopped again), frozen while a debugger
     /// halts the core.
     pub fn start(iwdg: pac::IWDG, dbgmcu: &pac::DBGMCU) -> Watchdog {
-        let mut watchdog = IndependentWatchdog::new(iwdg);
-        watchdog.stop_on_debug(dbgmcu, true);
-        watchdog.start(Self::TIMEOUT_MS.millis());
+        dbgmcu.apb1_fz().modify(|_, w| w.dbg_iwdg_stop().set_bit());
+        let watchdog = drivers_core::iwdg::Watchdog::start(
+            crate::drivers::iwdg::IwdgPeripheral(iwdg),
+            Self::TIMEOUT_MS,
+        );
         defmt::info!("watchdog: {=u32} ms nominal", Self::TIMEOUT_MS);
         Watchdog(watchdog)
     }

@@ -1,0 +1,837 @@
+//! The powerSTEP01 chain on SPI1 and the common CS line: a batch of CS
+//! windows clocked by DMA ([`ChainDma`]) for the control tick, and blocking
+//! windows ([`ChainPort`], the bridge's [`ChainBus`]) for chain detection at
+//! boot and the recovery windows after a bus error. Which bytes go into a
+//! window is the logic crate's job; this driver moves them and decides
+//! nothing else.
+//!
+//! Every register access goes through a [`ChainHw`] — on the chip the
+//! firmware's PAC glue (`firmware::drivers::chain_spi`: SPI1, DMA2, TIM7,
+//! GPIOA_BSRR, NVIC, cycle delays), on the host the RM0090 model
+//! `host_tests::rm0090::chain_spi` (SPI1 as master, DMA2 streams 0/3,
+//! TIM7, CS timing, the simulated chips behind MISO).
+//!
+//! # SPI1
+//!
+//! Master, mode 3 (CPOL = 1, CPHA = 1), MSB first, 8-bit frames, software
+//! NSS. SCK is the fastest APB2 division that does not exceed
+//! [`SCK_MAX_HZ`]: with APB2 = 84 MHz that is /32 = **2.625 MHz** (/16
+//! would be 5.25 MHz, above the chip's 5 MHz), 3.05 µs a byte.
+//!
+//! # A batch by DMA
+//!
+//! Up to [`MAX_WINDOWS`] windows of N ≤ [`MAX_DEVICES`] bytes, copied out
+//! of the bridge's plan by [`ChainDma::start`] into this driver's `'static`
+//! buffers. DMA2 stream 3 channel 3 (SPI1_TX) moves a window's N bytes out,
+//! stream 0 channel 3 (SPI1_RX) the N bytes that come back (RM0090 table
+//! 43; stream 2, SPI1_RX's other choice, is the I/O extension's). Every
+//! window, the first included, goes through three phases, each ended by an
+//! interrupt, so the CPU never waits on the bus:
+//!
+//! 1. **gap**: CS high for at least [`CS_DESELECT_NS`] (t_disCS), timed by
+//!    TIM7 in one-pulse mode (`TIM7` interrupt);
+//! 2. **setup**: CS low, then at least [`CS_SETUP_NS`] (t_setCS) before the
+//!    first clock edge, timed by TIM7 again (`TIM7` interrupt);
+//! 3. **shift**: TXDMAEN set, the N bytes go out and in; stream 0's
+//!    transfer-complete interrupt (`DMA2_STREAM0`) raises CS, arms both
+//!    streams for the next window and starts its gap — or, after the last
+//!    window, marks the batch done.
+//!
+//! The control tick collects the batch with [`ChainDma::poll`] at its next
+//! run. The streams are armed before TXDMAEN opens the TX request, and TX
+//! requests are closed again (TXDMAEN = 0) before the TX stream is enabled
+//! for the next window, so no byte can leave while CS is high. RXDMAEN stays
+//! set for the whole batch: nothing is received without a clock.
+//!
+//! # Errors (never a hang)
+//!
+//! * A transfer or direct-mode error of either stream, a FIFO error of the
+//!   receive stream (a byte lost), SPI1 overrun or mode fault:
+//!   [`ChainSpiError::Dma`] / [`ChainSpiError::Spi`]. The transmit stream's
+//!   FIFO-error flag is ignored: in direct mode, memory to peripheral, it
+//!   also rises when the stream is enabled with the request already active
+//!   (nothing is lost: the master's clock waits for its data).
+//! * A batch not over by its deadline (twice its nominal time + 100 µs,
+//!   from [`ChainDma::start`]): [`ChainDma::poll`] stops the streams and
+//!   TIM7, raises CS and reports [`ChainSpiError::Timeout`] (or `Dma` if the
+//!   transmit stream, whose errors raise no interrupt here, has an error).
+//! * SPI1 still busy after the last byte of a window (bounded status polls,
+//!   normally none): [`ChainSpiError::Stuck`].
+//!
+//! The bridge counts each as a chain error (`tick_end(Err(..))`), brings the
+//! chain back in step with blocking windows and sets every chip up again.
+//!
+//! # Blocking windows
+//!
+//! [`ChainPort::window`]: CS high for t_disCS (a DMA batch may have raised
+//! it just before), CS low, t_setCS, the bytes polled through SPI1_DR, CS
+//! high, t_disCS — busy-waits of CPU cycles, at boot and after a bus error
+//! only. Refused ([`ChainSpiError::Busy`]) while a DMA batch runs.
+//!
+//! # Shared hardware
+//!
+//! SPI1 and the CS pin are shared by the two halves ([`ChainPort`] and
+//! [`ChainDma`], each with its own [`ChainHw`] handle): the blocking half
+//! refuses while [`ChainHw::batch_running`] says a batch owns them. DMA2
+//! streams 0 and 3 are this driver's; the I/O extension's driver uses
+//! streams 2 and 6 (the flag-clear register is write-1-to-clear, so each
+//! writes only its own bits).
+//!
+//! # What is not verified
+//!
+//! Never run on a board: the register sequences are tested on the host
+//! against the RM0090 model (`host-tests/tests/rm0090_chain_spi.rs`: one
+//! test per rule, and control ticks of the bridge through driver and model
+//! into the simulated chips); `firmware/tests/chain_spi.rs` (board only)
+//! checks the real window timing. QEMU 7.2 has no DMA controller and no
+//! TIM7, so the QEMU image's chain is the simulator (`platform/qemu.rs`).
+
+use bridge_logic::bridge::BatchState;
+use bridge_logic::powerstep::chain::{ChainBus, Frames, Plan, MAX_DEVICES, MAX_WINDOWS};
+use core::sync::atomic::{compiler_fence, Ordering};
+
+use crate::Regs;
+
+/// The powerSTEP01 SPI limit is 5 MHz; stay at or below 4 MHz, the rate the
+/// reference libraries use on long daisy chains.
+pub const SCK_MAX_HZ: u32 = 4_000_000;
+/// CS low to first SCK edge (t_setCS of the family datasheets).
+pub const CS_SETUP_NS: u32 = 350;
+/// CS high between windows (t_disCS).
+pub const CS_DESELECT_NS: u32 = 800;
+
+/// DMA2 streams of SPI1 and their request channel (RM0090 table 43).
+pub const RX_STREAM: u8 = 0;
+pub const TX_STREAM: u8 = 3;
+pub const SPI1_CHANNEL: u32 = 3;
+
+/// DMA2_LISR / LIFCR bits of streams 0 and 3 (RM0090 10.5.1).
+pub const FEIF0: u32 = 1 << 0;
+pub const DMEIF0: u32 = 1 << 2;
+pub const TEIF0: u32 = 1 << 3;
+pub const HTIF0: u32 = 1 << 4;
+pub const TCIF0: u32 = 1 << 5;
+pub const FEIF3: u32 = 1 << 22;
+pub const DMEIF3: u32 = 1 << 24;
+pub const TEIF3: u32 = 1 << 25;
+pub const HTIF3: u32 = 1 << 26;
+pub const TCIF3: u32 = 1 << 27;
+const ERRORS: u32 = FEIF0 | DMEIF0 | TEIF0 | DMEIF3 | TEIF3;
+/// Every flag of streams 0 and 3 (their LIFCR bits).
+pub const STREAM_FLAGS: u32 =
+    FEIF0 | DMEIF0 | TEIF0 | HTIF0 | TCIF0 | FEIF3 | DMEIF3 | TEIF3 | HTIF3 | TCIF3;
+
+/// The registers the chain driver touches: SPI1, DMA2 (LISR/LIFCR and the
+/// stream registers of stream `n`), TIM7 (RM0090 §28.5, §10.5, §20.4).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ChainReg {
+    SpiCr1,
+    SpiCr2,
+    SpiSr,
+    SpiDr,
+    DmaLisr,
+    DmaLifcr,
+    DmaCr(u8),
+    DmaNdtr(u8),
+    DmaPar(u8),
+    DmaM0ar(u8),
+    DmaFcr(u8),
+    TimCr1,
+    TimDier,
+    TimSr,
+    TimEgr,
+    TimCnt,
+    TimPsc,
+    TimArr,
+}
+
+/// Register bits (RM0090 §28.5.1–§28.5.4, §10.5.5, §10.5.10, §20.4).
+pub mod bits {
+    pub const SPI_CR1_CPHA: u32 = 1 << 0;
+    pub const SPI_CR1_CPOL: u32 = 1 << 1;
+    pub const SPI_CR1_MSTR: u32 = 1 << 2;
+    pub const SPI_CR1_BR_SHIFT: u32 = 3;
+    pub const SPI_CR1_BR_MASK: u32 = 0b111 << SPI_CR1_BR_SHIFT;
+    pub const SPI_CR1_SPE: u32 = 1 << 6;
+    pub const SPI_CR1_LSBFIRST: u32 = 1 << 7;
+    pub const SPI_CR1_SSI: u32 = 1 << 8;
+    pub const SPI_CR1_SSM: u32 = 1 << 9;
+    pub const SPI_CR1_DFF: u32 = 1 << 11;
+    pub const SPI_CR2_RXDMAEN: u32 = 1 << 0;
+    pub const SPI_CR2_TXDMAEN: u32 = 1 << 1;
+    pub const SPI_SR_RXNE: u32 = 1 << 0;
+    pub const SPI_SR_TXE: u32 = 1 << 1;
+    pub const SPI_SR_MODF: u32 = 1 << 5;
+    pub const SPI_SR_OVR: u32 = 1 << 6;
+    pub const SPI_SR_BSY: u32 = 1 << 7;
+    pub const DMA_CR_EN: u32 = 1 << 0;
+    pub const DMA_CR_DMEIE: u32 = 1 << 1;
+    pub const DMA_CR_TEIE: u32 = 1 << 2;
+    pub const DMA_CR_HTIE: u32 = 1 << 3;
+    pub const DMA_CR_TCIE: u32 = 1 << 4;
+    pub const DMA_CR_DIR_SHIFT: u32 = 6;
+    pub const DMA_CR_DIR_MASK: u32 = 0b11 << DMA_CR_DIR_SHIFT;
+    pub const DMA_CR_DIR_M2P: u32 = 0b01 << DMA_CR_DIR_SHIFT;
+    pub const DMA_CR_MINC: u32 = 1 << 10;
+    pub const DMA_CR_PL_SHIFT: u32 = 16;
+    pub const DMA_CR_PL_HIGH: u32 = 0b10 << DMA_CR_PL_SHIFT;
+    pub const DMA_CR_PL_VERY_HIGH: u32 = 0b11 << DMA_CR_PL_SHIFT;
+    pub const DMA_CR_CHSEL_SHIFT: u32 = 25;
+    pub const DMA_CR_CHSEL_MASK: u32 = 0b111 << DMA_CR_CHSEL_SHIFT;
+    /// SxFCR reset value: direct mode, FIFO threshold 1/2.
+    pub const DMA_FCR_RESET: u32 = 0x21;
+    pub const DMA_FCR_FEIE: u32 = 1 << 7;
+    pub const TIM_CR1_CEN: u32 = 1 << 0;
+    pub const TIM_CR1_URS: u32 = 1 << 2;
+    pub const TIM_CR1_OPM: u32 = 1 << 3;
+    pub const TIM_DIER_UIE: u32 = 1 << 0;
+    pub const TIM_SR_UIF: u32 = 1 << 0;
+    pub const TIM_EGR_UG: u32 = 1 << 0;
+}
+
+use bits::*;
+
+/// What the driver needs besides the registers.
+pub trait ChainHw: Regs<ChainReg> {
+    /// Drive the common CS line (PA4) high or low.
+    fn cs(&mut self, high: bool);
+    /// Busy-wait `cycles` CPU cycles (blocking windows only).
+    fn delay_cycles(&mut self, cycles: u32);
+    /// Clear the pending bits of the batch's two interrupts (TIM7,
+    /// DMA2_STREAM0) after a stop.
+    fn unpend_interrupts(&mut self);
+    /// A DMA batch owns SPI1 and CS (shared by both halves' handles).
+    fn batch_running(&self) -> bool;
+    fn set_batch_running(&mut self, running: bool);
+}
+
+/// The batch's memory: the rows the streams read and write.
+pub trait ChainMemory {
+    /// Fill the first `windows` transmit rows from `frames` (read by the
+    /// transmit stream while the batch runs).
+    fn write_tx_rows(&mut self, frames: &Frames, windows: usize);
+    /// Copy the first `windows` receive rows (written by the receive
+    /// stream) into `out`, once the batch is over.
+    fn read_rx_rows(&self, out: &mut Frames, windows: usize);
+    /// The bus address of transmit (`rx` false) or receive row `w` (M0AR).
+    fn row_address(&self, rx: bool, w: usize) -> Option<u32>;
+    /// The bus address of SPI1_DR (PAR).
+    fn dr_address(&self) -> u32;
+}
+
+/// Status polls before SPI1 counts as stuck on the blocking path: far
+/// beyond a byte (3.05 µs ≈ 512 cycles, a poll takes several), short
+/// enough not to hang.
+const POLLS: u32 = 20_000;
+/// Status polls inside an interrupt or a lock: BSY after a window's last
+/// byte (clears within one SCK period of the last edge, 64 cycles), a
+/// stream's EN after it was disabled (clears after the current beat); 256
+/// polls are ≥ 4.5 µs.
+const SHORT_POLLS: u32 = 256;
+
+/// Why the chain bus failed (the bridge counts it as a chain error).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ChainSpiError {
+    /// A DMA stream reported a transfer, direct-mode or (receive) FIFO error.
+    Dma,
+    /// SPI1 reported an overrun or a mode fault.
+    Spi,
+    /// SPI1 did not take or give a byte, or stayed busy, within the bound.
+    Stuck,
+    /// The batch was not over by its deadline: stopped.
+    Timeout,
+    /// A batch is running: nothing was started, no window clocked.
+    Busy,
+    /// The plan has no window or no device, or more than the buffers hold.
+    BadPlan,
+}
+
+/// A batch's buffers: `'static` on the chip, so the streams can own them
+/// while it runs. Row w holds window w (the first N bytes are used).
+#[derive(Clone, Debug)]
+pub struct ChainBuffers {
+    pub tx: Frames,
+    pub rx: Frames,
+}
+
+impl ChainBuffers {
+    pub const fn new() -> ChainBuffers {
+        ChainBuffers {
+            tx: [[0; MAX_DEVICES]; MAX_WINDOWS],
+            rx: [[0; MAX_DEVICES]; MAX_WINDOWS],
+        }
+    }
+
+    /// The receive rows (QEMU's stand-in clocks its simulated chips into
+    /// them).
+    pub fn rx_mut(&mut self) -> &mut Frames {
+        &mut self.rx
+    }
+}
+
+impl Default for ChainBuffers {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Smallest SPI baud-rate divider (2, 4, …, 256) giving at most `max_hz`,
+/// and its CR1.BR code.
+pub fn sck_divider(pclk_hz: u32, max_hz: u32) -> (u32, u32) {
+    let mut div = 2;
+    let mut br = 0;
+    while div < 256 && pclk_hz / div > max_hz {
+        div *= 2;
+        br += 1;
+    }
+    (div, br)
+}
+
+/// Clock cycles of `hz` for `ns` nanoseconds, rounded up.
+pub fn cycles(ns: u32, hz: u32) -> u32 {
+    let c = (u64::from(ns) * u64::from(hz)).div_ceil(1_000_000_000);
+    u32::try_from(c).unwrap_or(u32::MAX)
+}
+
+/// SPI1 up (mode 3, MSB first, 8-bit, master, software NSS held high,
+/// CR1.BR = `br`), then enabled.
+fn configure_spi(hw: &mut impl ChainHw, br: u32) {
+    hw.write(
+        ChainReg::SpiCr1,
+        SPI_CR1_CPHA
+            | SPI_CR1_CPOL
+            | SPI_CR1_MSTR
+            | ((br << SPI_CR1_BR_SHIFT) & SPI_CR1_BR_MASK)
+            | SPI_CR1_SSM
+            | SPI_CR1_SSI,
+    );
+    hw.write(ChainReg::SpiCr2, 0);
+    hw.modify(ChainReg::SpiCr1, |cr1| cr1 | SPI_CR1_SPE);
+}
+
+/// Read DR, then SR: drops a stale byte and clears an overrun (RM0090
+/// §28.4.8: OVR is cleared by a DR read followed by an SR read).
+fn drain_spi(hw: &mut impl ChainHw) {
+    let _ = hw.read(ChainReg::SpiDr);
+    let _ = hw.read(ChainReg::SpiSr);
+}
+
+/// Wait (at most `polls` reads) until SPI1 is not busy; false if it stays
+/// busy.
+fn spi_idle(hw: &mut impl ChainHw, polls: u32) -> bool {
+    (0..polls).any(|_| hw.read(ChainReg::SpiSr) & SPI_SR_BSY == 0)
+}
+
+/// Clear every flag of streams 0 and 3 (write 1 to clear; the other
+/// streams' bits are written 0, which changes nothing).
+fn clear_flags(hw: &mut impl ChainHw) {
+    hw.write(ChainReg::DmaLifcr, STREAM_FLAGS);
+}
+
+/// The clocks the driver works from.
+#[derive(Clone, Copy, Debug)]
+pub struct ChainClocks {
+    /// SPI1's APB2 clock.
+    pub pclk2_hz: u32,
+    /// The CPU clock (busy waits of the blocking half).
+    pub sysclk_hz: u32,
+    /// TIM7's clock.
+    pub timclk_hz: u32,
+}
+
+/// Set up SPI1, TIM7 and DMA2 streams 0/3 through `dma_hw` (CS high) and
+/// return the blocking half on `port_hw` and the DMA half on `dma_hw`. The
+/// caller has clocked and reset SPI1 and TIM7 and clocked DMA2.
+pub fn chain_spi<P: ChainHw, D: ChainHw + ChainMemory>(
+    port_hw: P,
+    mut dma_hw: D,
+    clocks: ChainClocks,
+) -> (ChainPort<P>, ChainDma<D>) {
+    let (div, br) = sck_divider(clocks.pclk2_hz, SCK_MAX_HZ);
+    let sck_hz = clocks.pclk2_hz / div;
+    let hw = &mut dma_hw;
+    hw.cs(true);
+    configure_spi(hw, br);
+
+    // TIM7: one-pulse, only an overflow raises the update interrupt; the
+    // prescaler (1) is loaded by the UG event, which sets no flag with URS.
+    hw.write(ChainReg::TimCr1, TIM_CR1_OPM | TIM_CR1_URS);
+    hw.write(ChainReg::TimPsc, 0);
+    hw.write(ChainReg::TimEgr, TIM_EGR_UG);
+    hw.write(ChainReg::TimSr, 0);
+    hw.write(ChainReg::TimDier, TIM_DIER_UIE);
+
+    // Both streams: byte to byte, memory incremented, direct mode. The
+    // receive stream interrupts on transfer complete and its errors; the
+    // transmit stream's errors raise no interrupt (its IRQ is not bound):
+    // they are read at the receive stream's interrupt and at the deadline.
+    let dr = hw.dr_address();
+    for s in [RX_STREAM, TX_STREAM] {
+        hw.modify(ChainReg::DmaCr(s), |cr| cr & !DMA_CR_EN);
+    }
+    let chsel = SPI1_CHANNEL << DMA_CR_CHSEL_SHIFT;
+    hw.write(ChainReg::DmaPar(RX_STREAM), dr);
+    hw.write(ChainReg::DmaFcr(RX_STREAM), DMA_FCR_RESET);
+    hw.write(
+        ChainReg::DmaCr(RX_STREAM),
+        chsel | DMA_CR_MINC | DMA_CR_PL_VERY_HIGH | DMA_CR_TCIE | DMA_CR_TEIE | DMA_CR_DMEIE,
+    );
+    hw.write(ChainReg::DmaPar(TX_STREAM), dr);
+    hw.write(ChainReg::DmaFcr(TX_STREAM), DMA_FCR_RESET);
+    hw.write(
+        ChainReg::DmaCr(TX_STREAM),
+        chsel | DMA_CR_DIR_M2P | DMA_CR_MINC | DMA_CR_PL_HIGH,
+    );
+    clear_flags(hw);
+
+    let gap_ticks = cycles(CS_DESELECT_NS, clocks.timclk_hz);
+    let setup_ticks = cycles(CS_SETUP_NS, clocks.timclk_hz);
+    let deselect_cycles = cycles(CS_DESELECT_NS, clocks.sysclk_hz);
+    let port = ChainPort {
+        hw: port_hw,
+        setup_cycles: cycles(CS_SETUP_NS, clocks.sysclk_hz),
+        deselect_cycles,
+        sck_hz,
+    };
+    let dma = ChainDma {
+        hw: dma_hw,
+        // The counter runs 0..=ARR and overflows one tick later, so ARR =
+        // ticks waits at least `ticks` + 1 periods of the timer clock.
+        gap_arr: u16::try_from(gap_ticks).unwrap_or(u16::MAX),
+        setup_arr: u16::try_from(setup_ticks).unwrap_or(u16::MAX),
+        timing: Timing::new(gap_ticks, setup_ticks, clocks.timclk_hz, sck_hz),
+        sck_hz,
+        deselect_cycles,
+        windows: 0,
+        n: 0,
+        window: 0,
+        phase: Phase::Idle,
+        deadline_us: 0,
+        stats: ChainDmaStats::default(),
+    };
+    (port, dma)
+}
+
+// --- the blocking half --------------------------------------------------------
+
+/// Blocking windows on SPI1 (the bridge's [`ChainBus`]): chain detection
+/// and the recovery windows after a bus error.
+#[derive(Debug)]
+pub struct ChainPort<H> {
+    hw: H,
+    setup_cycles: u32,
+    deselect_cycles: u32,
+    sck_hz: u32,
+}
+
+impl<H: ChainHw> ChainPort<H> {
+    /// The SCK rate actually configured.
+    pub fn sck_hz(&self) -> u32 {
+        self.sck_hz
+    }
+
+    /// The hardware handle (on the host: the model).
+    pub fn hw(&self) -> &H {
+        &self.hw
+    }
+
+    pub fn hw_mut(&mut self) -> &mut H {
+        &mut self.hw
+    }
+}
+
+impl<H: ChainHw> ChainBus for ChainPort<H> {
+    type Error = ChainSpiError;
+
+    fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), ChainSpiError> {
+        if self.hw.batch_running() {
+            return Err(ChainSpiError::Busy);
+        }
+        // CS is high; a DMA batch may have raised it just now.
+        self.hw.delay_cycles(self.deselect_cycles);
+        self.hw.cs(false);
+        self.hw.delay_cycles(self.setup_cycles);
+        let result = transfer_polled(&mut self.hw, tx, rx);
+        self.hw.cs(true);
+        self.hw.delay_cycles(self.deselect_cycles);
+        result
+    }
+}
+
+/// Full duplex, byte by byte through SPI1_DR (pads with 0x00 / drops extra
+/// bytes if the lengths ever differ; the chain always passes equal ones).
+fn transfer_polled(hw: &mut impl ChainHw, tx: &[u8], rx: &mut [u8]) -> Result<(), ChainSpiError> {
+    drain_spi(hw);
+    for i in 0..tx.len().max(rx.len()) {
+        if !(0..POLLS).any(|_| hw.read(ChainReg::SpiSr) & SPI_SR_TXE != 0) {
+            return Err(ChainSpiError::Stuck);
+        }
+        let byte = tx.get(i).copied().unwrap_or(0);
+        hw.write(ChainReg::SpiDr, u32::from(byte));
+        if !(0..POLLS).any(|_| hw.read(ChainReg::SpiSr) & SPI_SR_RXNE != 0) {
+            return Err(ChainSpiError::Stuck);
+        }
+        // 8-bit frames: DR's low byte.
+        let got = hw.read(ChainReg::SpiDr) as u8;
+        if let Some(slot) = rx.get_mut(i) {
+            *slot = got;
+        }
+    }
+    let sr = hw.read(ChainReg::SpiSr);
+    if sr & (SPI_SR_OVR | SPI_SR_MODF) != 0 {
+        drain_spi(hw);
+        let br = (hw.read(ChainReg::SpiCr1) & SPI_CR1_BR_MASK) >> SPI_CR1_BR_SHIFT;
+        configure_spi(hw, br);
+        return Err(ChainSpiError::Spi);
+    }
+    // TXE says the last byte left DR, not that it left the wire: CS may
+    // rise only once BSY is clear (RM0090 §28.3.8).
+    if spi_idle(hw, POLLS) {
+        Ok(())
+    } else {
+        Err(ChainSpiError::Stuck)
+    }
+}
+
+// --- the DMA half -------------------------------------------------------------
+
+/// Where the batch is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    Idle,
+    /// CS high, TIM7 times t_disCS before window `window`.
+    Gap,
+    /// CS low, TIM7 times t_setCS.
+    Setup,
+    /// The window's bytes are on the wire.
+    Shift,
+    /// Over, not yet collected by `poll`.
+    Done(Result<(), ChainSpiError>),
+}
+
+/// Counts since boot (the bridge counts chain errors of every kind).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct ChainDmaStats {
+    pub batches: u32,
+    pub windows: u32,
+    pub dma_errors: u32,
+    pub spi_errors: u32,
+    pub stuck: u32,
+    pub timeouts: u32,
+}
+
+/// The DMA half's times, worked out once (no division per batch).
+#[derive(Clone, Copy, Debug)]
+struct Timing {
+    /// TIM7's gap and set-up, ns.
+    gap_ns: u32,
+    setup_ns: u32,
+    /// Gap + set-up + 3 µs for a window's three interrupts, ns.
+    window_ns: u32,
+    /// One byte on the wire, ns (rounded up).
+    byte_ns: u32,
+}
+
+impl Timing {
+    fn new(gap_ticks: u32, setup_ticks: u32, timclk_hz: u32, sck_hz: u32) -> Timing {
+        // ARR = ticks: the pulse lasts ticks + 1 timer-clock periods.
+        let ns = |ticks: u32| {
+            let t = (u64::from(ticks) + 1) * 1_000_000_000 / u64::from(timclk_hz.max(1));
+            u32::try_from(t).unwrap_or(u32::MAX)
+        };
+        let (gap_ns, setup_ns) = (ns(gap_ticks), ns(setup_ticks));
+        let byte = (8_000_000_000u64).div_ceil(u64::from(sck_hz.max(1)));
+        Timing {
+            gap_ns,
+            setup_ns,
+            window_ns: gap_ns.saturating_add(setup_ns).saturating_add(3_000),
+            byte_ns: u32::try_from(byte).unwrap_or(u32::MAX),
+        }
+    }
+}
+
+/// The control tick's chain driver: batches of windows by DMA2 and TIM7
+/// (module docs). `start` and `poll` from the control tick; `on_dma` from
+/// `DMA2_STREAM0`, `on_timer` from `TIM7`.
+#[derive(Debug)]
+pub struct ChainDma<H> {
+    hw: H,
+    gap_arr: u16,
+    setup_arr: u16,
+    timing: Timing,
+    sck_hz: u32,
+    deselect_cycles: u32,
+    windows: u8,
+    n: u8,
+    /// The window in its gap, setup or shift.
+    window: u8,
+    phase: Phase,
+    deadline_us: u64,
+    stats: ChainDmaStats,
+}
+
+impl<H: ChainHw + ChainMemory> ChainDma<H> {
+    /// The hardware handle (on the host: the model).
+    pub fn hw(&self) -> &H {
+        &self.hw
+    }
+
+    pub fn hw_mut(&mut self) -> &mut H {
+        &mut self.hw
+    }
+
+    /// Copy the plan's windows into the buffers and start the batch (its
+    /// first gap). `now_us`: the monotonic's µs, for the deadline. The
+    /// port is the bridge's blocking half (QEMU's stand-in clocks its
+    /// simulated chips through it; the DMA does not need it).
+    pub fn start<P>(
+        &mut self,
+        plan: &Plan,
+        _port: &mut P,
+        now_us: u64,
+    ) -> Result<(), ChainSpiError> {
+        if self.phase != Phase::Idle {
+            // Running, or over and not yet collected by `poll`.
+            return Err(ChainSpiError::Busy);
+        }
+        let (windows, n) = (plan.windows(), plan.devices());
+        if windows == 0 || windows > MAX_WINDOWS || n == 0 || n > MAX_DEVICES {
+            return Err(ChainSpiError::BadPlan);
+        }
+        // Whole rows: two words each, no length to check.
+        self.hw.write_tx_rows(plan.frames(), windows);
+        let hw = &mut self.hw;
+        if !(0..SHORT_POLLS).any(|_| {
+            hw.read(ChainReg::DmaCr(RX_STREAM)) & DMA_CR_EN == 0
+                && hw.read(ChainReg::DmaCr(TX_STREAM)) & DMA_CR_EN == 0
+        }) {
+            self.stats.stuck = self.stats.stuck.saturating_add(1);
+            return Err(ChainSpiError::Stuck);
+        }
+        // Window counts fit: at most 16 windows of 8 bytes.
+        self.windows = windows as u8;
+        self.n = n as u8;
+        self.window = 0;
+        self.deadline_us = now_us.saturating_add(self.bound_us());
+        self.stats.batches = self.stats.batches.saturating_add(1);
+        self.hw.set_batch_running(true);
+        drain_spi(&mut self.hw);
+        self.hw
+            .modify(ChainReg::SpiCr2, |cr2| cr2 | SPI_CR2_RXDMAEN);
+        self.arm();
+        self.phase = Phase::Gap;
+        self.timer(self.gap_arr);
+        Ok(())
+    }
+
+    /// The batch as the control tick finds it. Done: its received windows
+    /// are copied into `rx` (row w = window w). A batch past its deadline
+    /// is stopped and reported as [`ChainSpiError::Timeout`].
+    pub fn poll<'a>(&mut self, now_us: u64, rx: &'a mut Frames) -> BatchState<'a, ChainSpiError> {
+        match self.phase {
+            Phase::Idle => BatchState::Idle,
+            Phase::Gap | Phase::Setup | Phase::Shift => {
+                if now_us < self.deadline_us {
+                    return BatchState::Running;
+                }
+                let tx_error = self.hw.read(ChainReg::DmaLisr) & (TEIF3 | DMEIF3) != 0;
+                let why = if tx_error {
+                    self.stats.dma_errors = self.stats.dma_errors.saturating_add(1);
+                    ChainSpiError::Dma
+                } else {
+                    self.stats.timeouts = self.stats.timeouts.saturating_add(1);
+                    ChainSpiError::Timeout
+                };
+                self.stop();
+                self.phase = Phase::Idle;
+                BatchState::Done(Err(why))
+            }
+            Phase::Done(result) => {
+                self.phase = Phase::Idle;
+                match result {
+                    Ok(()) => {
+                        self.hw.read_rx_rows(rx, usize::from(self.windows));
+                        BatchState::Done(Ok(rx))
+                    }
+                    Err(e) => BatchState::Done(Err(e)),
+                }
+            }
+        }
+    }
+
+    /// `DMA2_STREAM0`: the receive stream's transfer complete or an error.
+    pub fn on_dma(&mut self) {
+        let lisr = self.hw.read(ChainReg::DmaLisr);
+        self.dma_event(lisr);
+    }
+
+    /// [`ChainDma::on_dma`] with DMA2_LISR as read (`lisr`): the cost bench
+    /// feeds it under QEMU, whose DMA2 reads 0.
+    pub fn dma_event(&mut self, lisr: u32) {
+        clear_flags(&mut self.hw);
+        if self.phase != Phase::Shift {
+            // Nothing of ours on the wire (a stray flag).
+            return;
+        }
+        if lisr & ERRORS != 0 {
+            self.stats.dma_errors = self.stats.dma_errors.saturating_add(1);
+            self.fail(ChainSpiError::Dma);
+            return;
+        }
+        if lisr & TCIF0 == 0 {
+            return;
+        }
+        let sr = self.hw.read(ChainReg::SpiSr);
+        if sr & (SPI_SR_OVR | SPI_SR_MODF) != 0 {
+            self.stats.spi_errors = self.stats.spi_errors.saturating_add(1);
+            self.fail(ChainSpiError::Spi);
+            return;
+        }
+        // The last byte is in, its last edge has passed: SPI1 is normally
+        // idle already.
+        if sr & SPI_SR_BSY != 0 && !spi_idle(&mut self.hw, SHORT_POLLS) {
+            self.stats.stuck = self.stats.stuck.saturating_add(1);
+            self.fail(ChainSpiError::Stuck);
+            return;
+        }
+        self.hw
+            .modify(ChainReg::SpiCr2, |cr2| cr2 & !SPI_CR2_TXDMAEN);
+        compiler_fence(Ordering::SeqCst);
+        self.stats.windows = self.stats.windows.saturating_add(1);
+        self.window = self.window.saturating_add(1);
+        if self.window >= self.windows {
+            self.hw.cs(true);
+            self.hw
+                .modify(ChainReg::SpiCr2, |cr2| cr2 & !SPI_CR2_RXDMAEN);
+            self.phase = Phase::Done(Ok(()));
+            self.hw.set_batch_running(false);
+            return;
+        }
+        // Arm first, so the gap starts right at the CS rise.
+        self.arm();
+        self.phase = Phase::Gap;
+        self.hw.cs(true);
+        self.timer(self.gap_arr);
+    }
+
+    /// `TIM7`: the gap or the setup time is over.
+    pub fn on_timer(&mut self) {
+        self.hw.write(ChainReg::TimSr, 0);
+        match self.phase {
+            Phase::Gap => {
+                self.hw.cs(false);
+                self.phase = Phase::Setup;
+                self.timer(self.setup_arr);
+            }
+            Phase::Setup => {
+                self.phase = Phase::Shift;
+                compiler_fence(Ordering::SeqCst);
+                self.hw
+                    .modify(ChainReg::SpiCr2, |cr2| cr2 | SPI_CR2_TXDMAEN);
+            }
+            Phase::Idle | Phase::Shift | Phase::Done(_) => {}
+        }
+    }
+
+    /// Counts since boot.
+    pub fn stats(&self) -> ChainDmaStats {
+        self.stats
+    }
+
+    /// A batch is on the bus (one that is over but not yet collected by
+    /// `poll` is not).
+    pub fn is_running(&self) -> bool {
+        matches!(self.phase, Phase::Gap | Phase::Setup | Phase::Shift)
+    }
+
+    /// The SCK rate actually configured.
+    pub fn sck_hz(&self) -> u32 {
+        self.sck_hz
+    }
+
+    /// The CS-high gap and the CS set-up time TIM7 makes, in ns.
+    pub fn gap_and_setup_ns(&self) -> (u32, u32) {
+        (self.timing.gap_ns, self.timing.setup_ns)
+    }
+
+    /// Nominal duration of the current batch, µs (rounded up): per window
+    /// the gap, the set-up, the bytes and 3 µs for the three interrupts.
+    pub fn nominal_us(&self) -> u64 {
+        let t = &self.timing;
+        let window_ns = t
+            .window_ns
+            .saturating_add(u32::from(self.n).saturating_mul(t.byte_ns));
+        // 16 windows of 8 bytes at 2.625 MHz: 0.46 ms, far from saturating.
+        u64::from(
+            u32::from(self.windows)
+                .saturating_mul(window_ns)
+                .div_ceil(1_000),
+        )
+    }
+
+    /// How long a batch may take before `poll` stops it.
+    fn bound_us(&self) -> u64 {
+        2 * self.nominal_us() + 100
+    }
+
+    /// Point both streams at window `self.window` and enable them (TX
+    /// requests are closed: nothing moves until TXDMAEN). The stream
+    /// registers are written while EN = 0 and the stream's flags are
+    /// cleared before EN is set (RM0090 §10.3.17).
+    fn arm(&mut self) {
+        let w = usize::from(self.window);
+        let (Some(tx), Some(rx)) = (self.hw.row_address(false, w), self.hw.row_address(true, w))
+        else {
+            return;
+        };
+        let n = u32::from(self.n);
+        let hw = &mut self.hw;
+        clear_flags(hw);
+        hw.write(ChainReg::DmaM0ar(RX_STREAM), rx);
+        hw.write(ChainReg::DmaNdtr(RX_STREAM), n);
+        hw.write(ChainReg::DmaM0ar(TX_STREAM), tx);
+        hw.write(ChainReg::DmaNdtr(TX_STREAM), n);
+        compiler_fence(Ordering::SeqCst);
+        hw.modify(ChainReg::DmaCr(RX_STREAM), |cr| cr | DMA_CR_EN);
+        hw.modify(ChainReg::DmaCr(TX_STREAM), |cr| cr | DMA_CR_EN);
+    }
+
+    /// TIM7 once, `arr` + 1 timer-clock periods, then its interrupt.
+    fn timer(&mut self, arr: u16) {
+        let hw = &mut self.hw;
+        hw.write(ChainReg::TimArr, u32::from(arr));
+        hw.write(ChainReg::TimCnt, 0);
+        hw.write(ChainReg::TimCr1, TIM_CR1_OPM | TIM_CR1_URS | TIM_CR1_CEN);
+    }
+
+    /// End the batch with `why`, everything stopped.
+    fn fail(&mut self, why: ChainSpiError) {
+        self.stop();
+        self.phase = Phase::Done(Err(why));
+    }
+
+    /// Stop TIM7 and both streams, close the SPI requests, let SPI1 finish
+    /// its byte, raise CS and hold it high for t_disCS (error paths only).
+    fn stop(&mut self) {
+        let hw = &mut self.hw;
+        hw.write(ChainReg::TimCr1, TIM_CR1_OPM | TIM_CR1_URS);
+        hw.write(ChainReg::TimSr, 0);
+        hw.modify(ChainReg::SpiCr2, |cr2| {
+            cr2 & !(SPI_CR2_TXDMAEN | SPI_CR2_RXDMAEN)
+        });
+        for s in [RX_STREAM, TX_STREAM] {
+            hw.modify(ChainReg::DmaCr(s), |cr| cr & !DMA_CR_EN);
+        }
+        let _ = spi_idle(hw, SHORT_POLLS);
+        drain_spi(hw);
+        clear_flags(hw);
+        // An interrupt of the stopped batch may be pending: it would find
+        // the next batch's phase.
+        hw.unpend_interrupts();
+        hw.cs(true);
+        hw.delay_cycles(self.deselect_cycles);
+        hw.set_batch_running(false);
+    }
+}

@@ -1,0 +1,49 @@
+//! The register sequences of stepbridge's peripheral drivers, written once
+//! against a small register-access interface ([`Regs`]), so the same code
+//! runs on the STM32F405 (the firmware implements [`Regs`] on the PAC) and
+//! on the host against the RM0090 peripheral models in `host-tests`
+//! (`host_tests::rm0090`).
+//!
+//! * [`chain_spi`] — the powerSTEP01 chain: blocking windows on SPI1, and
+//!   batches of windows by DMA2 with CS gaps timed by TIM7.
+//! * [`i2c_slave`] — I2C1 as the PoStep60 I2C slave (interrupt-driven).
+//! * [`flash`] — the settings store's flash sectors through FLASH_KEYR /
+//!   FLASH_SR / FLASH_CR (blocking, as flash programming is on this chip).
+//! * [`rs485`] — USART2 and the RS-485 transceiver's DE line
+//!   (interrupt-driven).
+//! * [`iwdg`] — the independent watchdog: key sequence, prescaler, reload.
+//!
+//! What a driver decides — which register is read or written, in which
+//! order, with which value — lives here; the firmware's part is the PAC
+//! glue (a `match` from register id to PAC register, RCC enable/reset, GPIO)
+//! and nothing else. Every access is one volatile 16- or 32-bit access on
+//! the chip, so the order the models see is the order the bus sees.
+//!
+//! No `unsafe`, no allocation, no panics on any register value.
+#![no_std]
+#![forbid(unsafe_code)]
+#![warn(missing_debug_implementations)]
+
+pub mod chain_spi;
+pub mod flash;
+pub mod i2c_slave;
+pub mod iwdg;
+pub mod rs485;
+
+/// One peripheral's registers, named by `R` (an enum of that peripheral's
+/// registers). Each call is exactly one bus access, in program order: a read
+/// may have side effects (clearing a flag), so it takes `&mut self`.
+///
+/// Registers narrower than 32 bits are zero-extended on read and truncated
+/// on write.
+pub trait Regs<R: Copy> {
+    /// One read of `reg`.
+    fn read(&mut self, reg: R) -> u32;
+    /// One write of `value` to `reg`.
+    fn write(&mut self, reg: R, value: u32);
+    /// Read `reg`, then write `f(value)` back: two accesses, as on the chip.
+    fn modify(&mut self, reg: R, f: impl FnOnce(u32) -> u32) {
+        let value = self.read(reg);
+        self.write(reg, f(value));
+    }
+}

@@ -1,0 +1,408 @@
+//! The firmware's chain driver (`drivers_core::chain_spi`: blocking windows
+//! and DMA batches, the code the board runs) against the RM0090 model of
+//! SPI1, DMA2 streams 0/3, TIM7 and CS (`host_tests::rm0090::chain_spi`)
+//! with simulated powerSTEP01s behind MISO: one test per rule (S1–S11),
+//! then the bridge's control ticks through driver and model into the chips,
+//! compared with the blocking tick on the bare simulator.
+
+use bridge_logic::bridge::{BatchState, Bridge, SettingsSource};
+use bridge_logic::postep60::analog::AnalogSample;
+use bridge_logic::postep60::{Board, Query, Request, Settings, Value};
+use bridge_logic::powerstep::chain::{Batch, ChainBus, Frames, Plan, MAX_DEVICES, MAX_WINDOWS};
+use bridge_logic::powerstep::commands::Command;
+use bridge_logic::sim::SimChain;
+use drivers_core::chain_spi::bits::*;
+use drivers_core::chain_spi::{
+    chain_spi, ChainClocks, ChainDma, ChainPort, ChainSpiError, RX_STREAM, TEIF0, TX_STREAM,
+};
+use host_tests::rm0090::chain_spi::{ChainHandle, PCLK2_HZ, SYSCLK_HZ, TIMCLK_HZ};
+use host_tests::sim_bridge::{all_settled, chip, new_bridge, TICK_US};
+
+const EMPTY: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS];
+
+fn clocks() -> ChainClocks {
+    ChainClocks {
+        pclk2_hz: PCLK2_HZ as u32,
+        sysclk_hz: SYSCLK_HZ as u32,
+        timclk_hz: TIMCLK_HZ as u32,
+    }
+}
+
+/// Driver halves on a model with `n` simulated chips.
+fn rig(n: usize) -> (ChainPort<ChainHandle>, ChainDma<ChainHandle>, ChainHandle) {
+    let hw = ChainHandle::new(SimChain::new(n));
+    let (port, dma) = chain_spi(hw.clone(), hw.clone(), clocks());
+    (port, dma, hw)
+}
+
+fn now_us(hw: &ChainHandle) -> u64 {
+    hw.model().now_ns() / 1000
+}
+
+/// Let the model run to `until_us`, serving TIM7 and DMA2_STREAM0 (TIM7
+/// first: the lower IRQ number, both at one priority) `latency_ns` after
+/// their line rises.
+fn run_until(hw: &ChainHandle, dma: &mut ChainDma<ChainHandle>, until_us: u64, latency_ns: u64) {
+    let until = until_us * 1_000_000;
+    let mut served = 0;
+    loop {
+        let (tim, d) = {
+            let m = hw.model();
+            (m.tim_irq(), m.dma_irq())
+        };
+        if tim || d {
+            if latency_ns > 0 {
+                let t = hw.model().now_ns() * 1000 + latency_ns * 1000;
+                hw.model_mut().advance_to(t);
+            }
+            if hw.model().tim_irq() {
+                dma.on_timer();
+            } else if hw.model().dma_irq() {
+                dma.on_dma();
+            }
+            served += 1;
+            assert!(served < 10_000, "interrupt storm: {:?}", hw.model());
+            continue;
+        }
+        let next = hw.model().next_event();
+        match next {
+            Some(t) if t <= until => hw.model_mut().advance_to(t),
+            _ => {
+                hw.model_mut().advance_to(until);
+                return;
+            }
+        }
+    }
+}
+
+fn clean(hw: &ChainHandle) {
+    let m = hw.model();
+    assert_eq!(m.violations(), &[] as &[String]);
+    assert!(m.cs_high(), "CS high at rest");
+    assert!(
+        !m.tim_irq() && !m.dma_irq(),
+        "interrupt left pending: {m:?}"
+    );
+}
+
+fn status_plan(n: usize) -> Plan {
+    Plan::new(&Batch::all(n, Command::GetStatus)).expect("plan")
+}
+
+/// Start `plan`, run the model 1 ms, collect it.
+fn batch(
+    port: &mut ChainPort<ChainHandle>,
+    dma: &mut ChainDma<ChainHandle>,
+    hw: &ChainHandle,
+    plan: &Plan,
+    latency_ns: u64,
+) -> Result<Frames, ChainSpiError> {
+    let t0 = now_us(hw);
+    dma.start(plan, port, t0)?;
+    run_until(hw, dma, t0 + 1000, latency_ns);
+    let mut rx = EMPTY;
+    match dma.poll(now_us(hw), &mut rx) {
+        BatchState::Done(Ok(rows)) => Ok(*rows),
+        BatchState::Done(Err(e)) => Err(e),
+        other => panic!("batch not over after 1 ms: {other:?}"),
+    }
+}
+
+// ------------------------------------------------------- S1, S2 SPI1 --
+
+#[test]
+fn s1_s2_spi1_is_an_enabled_mode_3_msb_first_8_bit_master_at_2_625_mhz() {
+    let (port, _dma, hw) = rig(4);
+    let cr1 = hw.model().spi_cr1();
+    let want = SPI_CR1_CPOL | SPI_CR1_CPHA | SPI_CR1_MSTR | SPI_CR1_SSM | SPI_CR1_SSI | SPI_CR1_SPE;
+    assert_eq!(cr1 & want, want);
+    assert_eq!(cr1 & (SPI_CR1_LSBFIRST | SPI_CR1_DFF), 0);
+    assert_eq!(hw.model().sck_hz(), 2_625_000);
+    assert_eq!(port.sck_hz(), 2_625_000);
+    clean(&hw);
+}
+
+// ------------------------------------- S3–S5, S11 blocking windows --
+
+#[test]
+fn s3_s4_s5_a_blocking_window_returns_the_chains_bytes_and_raises_cs_after_bsy() {
+    let (mut port, _dma, hw) = rig(4);
+    let tx = [0xD0, 0xD0, 0xD0, 0xD0];
+    let mut rx = [0u8; 4];
+    port.window(&tx, &mut rx).unwrap();
+    let m = hw.model();
+    assert_eq!(m.windows.len(), 1);
+    assert_eq!(m.windows[0].tx, tx);
+    assert_eq!(m.windows[0].rx, rx);
+    assert!(!m.ovr());
+    drop(m);
+    clean(&hw);
+}
+
+#[test]
+fn s11_blocking_windows_keep_t_discs_and_t_setcs() {
+    let (mut port, _dma, hw) = rig(4);
+    for _ in 0..3 {
+        let mut rx = [0u8; 4];
+        port.window(&[0; 4], &mut rx).unwrap();
+    }
+    let m = hw.model();
+    for w in &m.windows {
+        assert!(w.setup_ns >= 350, "{w:?}");
+        assert!(w.gap_ns.is_none_or(|g| g >= 800), "{w:?}");
+    }
+    drop(m);
+    clean(&hw);
+}
+
+#[test]
+fn chain_detection_through_driver_and_model_finds_every_chip() {
+    for n in [1, 4, 8] {
+        let hw = ChainHandle::new(SimChain::new(n));
+        let (port, _dma) = chain_spi(hw.clone(), hw.clone(), clocks());
+        let bridge = Bridge::new(
+            port,
+            Board::REFERENCE,
+            Settings::FACTORY,
+            SettingsSource::Stored,
+            TICK_US,
+        );
+        assert_eq!(bridge.axes(), n, "{n} chips");
+        clean(&hw);
+    }
+}
+
+// -------------------------------------------- S6–S10 a DMA batch --
+
+#[test]
+fn s6_s9_s10_s11_a_dma_batch_clocks_every_window_with_the_cs_timing_the_chips_need() {
+    let (mut port, mut dma, hw) = rig(4);
+    let plan = status_plan(4);
+    let rows = batch(&mut port, &mut dma, &hw, &plan, 0).unwrap();
+    let m = hw.model();
+    assert_eq!(m.windows.len(), plan.windows());
+    for (w, win) in m.windows.iter().enumerate() {
+        assert_eq!(win.tx, plan.window(w).unwrap(), "window {w} out");
+        assert_eq!(win.rx, rows[w][..4], "window {w} back");
+        assert!(win.setup_ns >= 350, "{win:?}");
+        assert!(win.gap_ns.is_none_or(|g| g >= 800), "{win:?}");
+    }
+    drop(m);
+    assert!(!dma.is_running());
+    assert_eq!(dma.stats().windows as usize, plan.windows());
+    for s in [RX_STREAM, TX_STREAM] {
+        assert_eq!(hw.model().stream_cr(s) & DMA_CR_EN, 0, "stream {s} off");
+    }
+    assert_eq!(
+        hw.model().spi_cr2() & (SPI_CR2_TXDMAEN | SPI_CR2_RXDMAEN),
+        0
+    );
+    clean(&hw);
+}
+
+#[test]
+fn s8_the_streams_are_spi1_rx_and_tx_on_channel_3_at_spi1_dr() {
+    let (_port, _dma, hw) = rig(2);
+    let m = hw.model();
+    for (s, dir) in [(RX_STREAM, 0), (TX_STREAM, DMA_CR_DIR_M2P)] {
+        let cr = m.stream_cr(s);
+        assert_eq!((cr & DMA_CR_CHSEL_MASK) >> DMA_CR_CHSEL_SHIFT, 3);
+        assert_eq!(cr & DMA_CR_DIR_MASK, dir);
+        assert_eq!(m.stream_par(s), host_tests::rm0090::chain_spi::SPI1_DR);
+    }
+}
+
+#[test]
+fn s4_s10_a_batch_with_slow_interrupts_loses_no_byte_and_only_widens_the_gaps() {
+    for latency in [500, 2_000] {
+        let (mut port, mut dma, hw) = rig(8);
+        let plan = status_plan(8);
+        let rows = batch(&mut port, &mut dma, &hw, &plan, latency).unwrap();
+        let m = hw.model();
+        assert!(!m.ovr());
+        for (w, win) in m.windows.iter().enumerate() {
+            assert_eq!(win.rx, rows[w][..8]);
+        }
+        drop(m);
+        clean(&hw);
+    }
+}
+
+#[test]
+fn s7_batch_after_batch_rearms_the_streams_only_while_disabled_and_flags_clear() {
+    let (mut port, mut dma, hw) = rig(4);
+    let plan = status_plan(4);
+    for _ in 0..5 {
+        batch(&mut port, &mut dma, &hw, &plan, 0).unwrap();
+    }
+    assert_eq!(hw.model().windows.len(), 5 * plan.windows());
+    clean(&hw); // S7 violations would be listed
+}
+
+// ------------------------------------------------------------ errors --
+
+#[test]
+fn s9_a_dma_error_ends_the_batch_as_a_dma_error_and_the_next_batch_works() {
+    let (mut port, mut dma, hw) = rig(4);
+    let plan = status_plan(4);
+    hw.model_mut().fail_stream_next(RX_STREAM, TEIF0);
+    assert_eq!(
+        batch(&mut port, &mut dma, &hw, &plan, 0),
+        Err(ChainSpiError::Dma)
+    );
+    assert!(hw.model().cs_high());
+    assert!(batch(&mut port, &mut dma, &hw, &plan, 0).is_ok());
+    clean(&hw);
+}
+
+#[test]
+fn a_batch_past_its_deadline_is_stopped_as_a_timeout_with_cs_high() {
+    let (mut port, mut dma, hw) = rig(4);
+    let plan = status_plan(4);
+    dma.start(&plan, &mut port, now_us(&hw)).unwrap();
+    let t = now_us(&hw);
+    run_until(&hw, &mut dma, t + 5, 0);
+    hw.model_mut().frozen = true; // SCK stops mid-window
+    run_until(&hw, &mut dma, t + 2_000, 0);
+    let mut rx = EMPTY;
+    assert!(matches!(
+        dma.poll(now_us(&hw), &mut rx),
+        BatchState::Done(Err(ChainSpiError::Timeout))
+    ));
+    hw.model_mut().frozen = false;
+    assert!(hw.model().cs_high());
+    assert!(!dma.is_running());
+    let mut one = [0u8; 4];
+    assert!(
+        port.window(&[0; 4], &mut one).is_ok(),
+        "the blocking half works again"
+    );
+}
+
+#[test]
+fn a_blocking_window_is_refused_while_a_batch_runs() {
+    let (mut port, mut dma, hw) = rig(4);
+    let plan = status_plan(4);
+    dma.start(&plan, &mut port, now_us(&hw)).unwrap();
+    let mut rx = [0u8; 4];
+    assert_eq!(port.window(&[0; 4], &mut rx), Err(ChainSpiError::Busy));
+    assert_eq!(
+        dma.start(&plan, &mut port, now_us(&hw)),
+        Err(ChainSpiError::Busy)
+    );
+    let t = now_us(&hw);
+    run_until(&hw, &mut dma, t + 1000, 0);
+    let mut rows = EMPTY;
+    assert!(matches!(
+        dma.poll(now_us(&hw), &mut rows),
+        BatchState::Done(Ok(_))
+    ));
+    clean(&hw);
+}
+
+// ------------------------------------------- the bridge on the wire --
+
+/// A bridge whose chain is driver + model, ticked the firmware's way.
+struct Wire {
+    bridge: Bridge<ChainPort<ChainHandle>>,
+    dma: ChainDma<ChainHandle>,
+    hw: ChainHandle,
+    rx: Frames,
+    now_ms: u64,
+}
+
+impl Wire {
+    fn new(n: usize) -> Wire {
+        let hw = ChainHandle::new(SimChain::new(n));
+        let (port, dma) = chain_spi(hw.clone(), hw.clone(), clocks());
+        let mut bridge = Bridge::new(
+            port,
+            Board::REFERENCE,
+            Settings::FACTORY,
+            SettingsSource::Stored,
+            TICK_US,
+        );
+        bridge.on_analog(AnalogSample {
+            supply: 1490,
+            temperature: 943,
+            vrefint: 1502,
+        });
+        Wire {
+            bridge,
+            dma,
+            hw,
+            rx: EMPTY,
+            now_ms: 0,
+        }
+    }
+
+    /// One control tick (main.rs's `control_tick`: poll, then
+    /// `tick_pipelined` starting the next batch), then the period runs on
+    /// the model and the chips.
+    fn tick(&mut self) {
+        self.now_ms += 1;
+        let now_us = self.now_ms * 1000;
+        run_until(&self.hw, &mut self.dma, now_us, 300);
+        let previous = self.dma.poll(now_us, &mut self.rx);
+        let dma = &mut self.dma;
+        self.bridge
+            .tick_pipelined(self.now_ms, previous, |plan, port| {
+                dma.start(plan, port, now_us)
+            });
+        run_until(&self.hw, &mut self.dma, now_us + 999, 300);
+        self.hw.model_mut().chain.advance(u64::from(TICK_US) * 1000);
+    }
+}
+
+#[test]
+fn control_ticks_through_driver_and_model_send_the_chips_what_the_blocking_tick_sends() {
+    let mut a = new_bridge(4, Settings::FACTORY, Board::REFERENCE);
+    let mut w = Wire::new(4);
+    for now in 1..=300 {
+        a.tick(now);
+        a.chain_mut().bus_mut().advance(u64::from(TICK_US) * 1000);
+        w.tick();
+        let m = w.hw.model();
+        for k in 0..4 {
+            assert!(
+                chip(&a, k)
+                    .received()
+                    .eq(m.chain.device(k).unwrap().received()),
+                "chip {k}: the same commands at {now} ms"
+            );
+        }
+    }
+    assert!(all_settled(&a));
+    assert_eq!(w.bridge.diag.chain_errors, 0);
+    clean(&w.hw);
+}
+
+#[test]
+fn a_move_through_driver_and_model_lands_where_the_blocking_tick_lands() {
+    let mut a = new_bridge(2, Settings::FACTORY, Board::REFERENCE);
+    let mut w = Wire::new(2);
+    for now in 1..=6_000u64 {
+        if now == 50 {
+            let _ = a.request(0, Request::SetMode(4));
+            let _ = a.request(0, Request::RunSleep(1));
+            a.request(0, Request::SetPosition(4_000)).unwrap();
+            let _ = w.bridge.request(0, Request::SetMode(4));
+            let _ = w.bridge.request(0, Request::RunSleep(1));
+            w.bridge.request(0, Request::SetPosition(4_000)).unwrap();
+        }
+        a.tick(now);
+        a.chain_mut().bus_mut().advance(u64::from(TICK_US) * 1000);
+        w.tick();
+    }
+    assert_eq!(w.bridge.query(0, Query::Position), Some(Value::I32(4_000)));
+    assert_eq!(a.query(0, Query::Position), Some(Value::I32(4_000)));
+    let wire_pos = w.hw.model().chain.device(0).unwrap().abs_pos();
+    assert_eq!(
+        wire_pos,
+        chip(&a, 0).abs_pos(),
+        "the chip stands where the blocking tick puts it"
+    );
+    assert_ne!(wire_pos, 0);
+    assert_eq!(w.bridge.diag.chain_errors, 0);
+    clean(&w.hw);
+}
