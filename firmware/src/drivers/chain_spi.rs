@@ -70,28 +70,69 @@ pub struct ChainDmaRegs {
     bufs: &'static mut ChainBuffers,
 }
 
-impl Regs<ChainReg> for ChainRegs {
-    #[inline]
-    fn read(&mut self, reg: ChainReg) -> u32 {
-        read(reg)
-    }
+/// The register access and the CS, delay and flag hooks are the same for
+/// both halves (one set of registers; the DMA half adds the buffers).
+macro_rules! chain_hw {
+    ($t:ty) => {
+        impl Regs<ChainReg> for $t {
+            #[inline]
+            fn read(&mut self, reg: ChainReg) -> u32 {
+                read(reg)
+            }
 
-    #[inline]
-    fn write(&mut self, reg: ChainReg, value: u32) {
-        write(reg, value);
-    }
+            #[inline]
+            fn write(&mut self, reg: ChainReg, value: u32) {
+                write(reg, value);
+            }
+        }
+
+        impl ChainHw for $t {
+            #[inline]
+            fn cs(&mut self, high: bool) {
+                cs(high);
+            }
+
+            #[inline]
+            fn delay_cycles(&mut self, cycles: u32) {
+                cortex_m::asm::delay(cycles);
+            }
+
+            fn unpend_interrupts(&mut self) {
+                NVIC::unpend(Interrupt::TIM7);
+                NVIC::unpend(Interrupt::DMA2_STREAM0);
+            }
+
+            #[inline]
+            fn batch_running(&self) -> bool {
+                BATCH_RUNNING.load(Ordering::Acquire)
+            }
+
+            #[inline]
+            fn set_batch_running(&mut self, running: bool) {
+                BATCH_RUNNING.store(running, Ordering::Release);
+            }
+        }
+    };
 }
 
-impl Regs<ChainReg> for ChainDmaRegs {
-    #[inline]
-    fn read(&mut self, reg: ChainReg) -> u32 {
-        read(reg)
-    }
+chain_hw!(ChainRegs);
+chain_hw!(ChainDmaRegs);
 
-    #[inline]
-    fn write(&mut self, reg: ChainReg, value: u32) {
-        write(reg, value);
-    }
+/// CS (PA4) high or low.
+#[inline]
+fn cs(high: bool) {
+    // SAFETY: GPIOA is always mapped; BSRR writes are atomic and touch
+    // only the bit written. The CS pin's HAL handle was consumed by
+    // `chain_spi` (configured as a push-pull output, high); nothing else
+    // drives it.
+    let gpioa = unsafe { &*pac::GPIOA::ptr() };
+    gpioa.bsrr().write(|w| {
+        if high {
+            w.bs(CHAIN_CS_PIN).set_bit()
+        } else {
+            w.br(CHAIN_CS_PIN).set_bit()
+        }
+    });
 }
 
 /// One read of the chain register `reg`.
@@ -188,82 +229,6 @@ fn write(reg: ChainReg, value: u32) {
                 tim.arr().write(|w| w.bits(value));
             }
         };
-    }
-}
-
-impl ChainHw for ChainRegs {
-    #[inline]
-    fn cs(&mut self, high: bool) {
-        // SAFETY: GPIOA is always mapped; BSRR writes are atomic and touch
-        // only the bit written. The CS pin's HAL handle was consumed by
-        // `chain_spi` (configured as a push-pull output, high); nothing else
-        // drives it.
-        let gpioa = unsafe { &*pac::GPIOA::ptr() };
-        gpioa.bsrr().write(|w| {
-            if high {
-                w.bs(CHAIN_CS_PIN).set_bit()
-            } else {
-                w.br(CHAIN_CS_PIN).set_bit()
-            }
-        });
-    }
-
-    #[inline]
-    fn delay_cycles(&mut self, cycles: u32) {
-        cortex_m::asm::delay(cycles);
-    }
-
-    fn unpend_interrupts(&mut self) {
-        NVIC::unpend(Interrupt::TIM7);
-        NVIC::unpend(Interrupt::DMA2_STREAM0);
-    }
-
-    #[inline]
-    fn batch_running(&self) -> bool {
-        BATCH_RUNNING.load(Ordering::Acquire)
-    }
-
-    #[inline]
-    fn set_batch_running(&mut self, running: bool) {
-        BATCH_RUNNING.store(running, Ordering::Release);
-    }
-}
-
-impl ChainHw for ChainDmaRegs {
-    #[inline]
-    fn cs(&mut self, high: bool) {
-        // SAFETY: GPIOA is always mapped; BSRR writes are atomic and touch
-        // only the bit written. The CS pin's HAL handle was consumed by
-        // `chain_spi` (configured as a push-pull output, high); nothing else
-        // drives it.
-        let gpioa = unsafe { &*pac::GPIOA::ptr() };
-        gpioa.bsrr().write(|w| {
-            if high {
-                w.bs(CHAIN_CS_PIN).set_bit()
-            } else {
-                w.br(CHAIN_CS_PIN).set_bit()
-            }
-        });
-    }
-
-    #[inline]
-    fn delay_cycles(&mut self, cycles: u32) {
-        cortex_m::asm::delay(cycles);
-    }
-
-    fn unpend_interrupts(&mut self) {
-        NVIC::unpend(Interrupt::TIM7);
-        NVIC::unpend(Interrupt::DMA2_STREAM0);
-    }
-
-    #[inline]
-    fn batch_running(&self) -> bool {
-        BATCH_RUNNING.load(Ordering::Acquire)
-    }
-
-    #[inline]
-    fn set_batch_running(&mut self, running: bool) {
-        BATCH_RUNNING.store(running, Ordering::Release);
     }
 }
 
