@@ -446,6 +446,30 @@ fn a13_a_bus_error_with_an_address_pending_resets_nothing_and_serves_the_address
     assert_clean(&r);
 }
 
+#[test]
+fn a13_a_bus_error_in_the_middle_of_an_address_byte_never_reads_sr2() {
+    // An SR1-then-SR2 pair clears ADDR (A2): reading SR2 while a master
+    // clocks its address byte could clear an ADDR that sets between the two
+    // reads, and the driver would never see its address.
+    let mut r = rig(&[]);
+    r.model_mut().glitch_stuck_busy();
+    r.step("START", |m| m.start());
+    r.model_mut().inject(SR1_BERR);
+    r.serve();
+    let trace = r.model().trace();
+    assert!(
+        !trace.contains("read  Sr2"),
+        "SR2 read with the lines busy:\n{trace}"
+    );
+    assert_eq!(r.driver.resets(), 0, "no reset in the middle of a byte");
+    r.step("address", |m| m.address(PRIMARY, false));
+    r.step("byte", |m| m.master_write(0x14));
+    r.step("STOP", |m| m.stop());
+    r.settle();
+    assert_eq!(r.target.writes, [(Which::Primary, vec![0x14], false)]);
+    assert_clean(&r);
+}
+
 // ------------------------------------------------ A14 FREQ / OAR1 --
 
 #[test]

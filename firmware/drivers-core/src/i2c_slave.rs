@@ -391,13 +391,20 @@ impl<P: I2cPort> I2cSlaveDriver<P> {
     }
 
     /// BUSY set while SCL and SDA are both high: the peripheral missed a STOP
-    /// (a glitch) and would stay busy. Reads SR2 only if SR1, read just
-    /// before, shows no ADDR (an SR1-then-SR2 read would clear it).
+    /// (a glitch) and would stay busy. The lines are checked first: while a
+    /// master clocks a byte they are not both high, and SR2 is not read then,
+    /// so an ADDR that sets between the SR1 and the SR2 read below (an
+    /// SR1-then-SR2 pair clears it) cannot be lost: an address byte takes
+    /// ≥ 22 µs from the lines' last idle sample. SR2 is also read only if
+    /// SR1 shows no ADDR.
     fn stuck_busy(&mut self) -> bool {
+        if !self.port.lines_high() {
+            return false;
+        }
         if self.port.read(I2cReg::Sr1) & SR1_ADDR != 0 {
             return false;
         }
-        self.port.read(I2cReg::Sr2) & SR2_BUSY != 0 && self.port.lines_high()
+        self.port.read(I2cReg::Sr2) & SR2_BUSY != 0
     }
 
     /// Read the waiting received bytes (at most [`RX_DEPTH`]) into `slave`:
