@@ -546,6 +546,19 @@ fn model_addr_stays_set_when_sr2_is_read_before_sr1() {
 }
 
 #[test]
+fn model_an_addr_that_sets_between_sr1_and_sr2_is_cleared_by_the_pair() {
+    // The strict reading of "SR1 followed by SR2" (modelling choices): the
+    // pair clears ADDR even when the SR1 read did not show it.
+    use drivers_core::i2c_slave::I2cReg::{Sr1, Sr2};
+    let mut m = enabled_model();
+    m.start().unwrap();
+    assert_eq!(m.read(Sr1) & SR1_ADDR, 0);
+    assert_eq!(m.address(0x21, false), Ok(true));
+    m.read(Sr2);
+    assert_eq!(m.sr1() & SR1_ADDR, 0, "cleared unseen");
+}
+
+#[test]
 fn model_stopf_stays_set_when_cr1_is_written_without_the_sr1_read() {
     use drivers_core::i2c_slave::I2cReg::{Cr1, Dr, Sr1, Sr2};
     let mut m = enabled_model();

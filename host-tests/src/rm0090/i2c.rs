@@ -9,7 +9,7 @@
 //! | # | rule | section |
 //! |---|---|---|
 //! | A1 | ADDR is set when the address byte matches OAR1 (ADDMODE = 0) or, with ENDUAL, OAR2, and ACK = 1 (else the address is NACKed and the slave stays out); SR2.TRA is the R/W bit, SR2.DUALF which own address matched | §27.3.3 "Slave mode", §27.6.4, §27.6.7 |
-//! | A2 | ADDR is cleared by a read of SR1 that shows it, followed by a read of SR2; until then SCL is stretched | §27.3.3, §27.6.6 (ADDR) |
+//! | A2 | ADDR is cleared by a read of SR1 followed by a read of SR2 (the model: any SR1 read, see the modelling choices); until then SCL is stretched | §27.3.3, §27.6.6 (ADDR) |
 //! | A3 | In transmitter mode TXE sets once ADDR is clear; with DR empty and the shift register empty SCL is stretched until DR is written (EV3-1) | §27.3.3 "Slave transmitter" |
 //! | A4 | After a byte the master ACKs, DR (if written) moves to the shift register and TXE sets; if DR was not written, BTF sets and SCL is stretched until a read of SR1 (showing BTF) followed by a write of DR | §27.3.3 "Slave transmitter", §27.6.6 (BTF) |
 //! | A5 | A byte the master NACKs sets AF (an error interrupt); no STOPF follows a NACK; AF is cleared by writing 0 to it | §27.3.3 "Closing slave communication", §27.3.5 "Acknowledge failure", §27.6.6 (AF, STOPF) |
@@ -29,7 +29,10 @@
 //!
 //! * "Read SR1, followed by X": the model arms a clear with the flags an SR1
 //!   read showed; X (SR2 read for ADDR, CR1 write for STOPF, DR access for
-//!   BTF) clears what is armed. Reads of other registers in between keep it
+//!   BTF) clears what is armed. ADDR is the strict exception: every SR1
+//!   read arms its clear, so an SR2 read after any SR1 read clears an ADDR
+//!   that has set in between (the reading that assumes least of the
+//!   silicon; the driver must never pair the two reads casually). Reads of other registers in between keep it
 //!   armed (ST's own HAL reads CR1 between the two halves of the STOPF
 //!   clear, and it works on silicon); any write, or a DR access, disarms.
 //! * A byte written to DR that never went out (the master NACKed earlier)
@@ -462,7 +465,8 @@ impl I2cModel {
             I2cReg::Trise => self.trise,
             I2cReg::Sr1 => {
                 let v = self.sr1;
-                self.armed = v & (SR1_ADDR | SR1_STOPF | SR1_BTF);
+                // ADDR's clear is armed by any SR1 read (modelling choices).
+                self.armed = (v & (SR1_STOPF | SR1_BTF)) | SR1_ADDR;
                 self.last_sr1 = v;
                 let late = std::mem::take(&mut self.after_sr1);
                 self.set(late);
