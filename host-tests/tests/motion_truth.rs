@@ -489,6 +489,13 @@ fn random_run_with(n: usize, sequences: usize, seed: u64, tick_us: u32, ppm: i32
 const LANDING_TOLERANCE: i64 = 1;
 
 fn assert_truth(t: &Truth) {
+    assert_arrives_within(t, 16);
+}
+
+/// Every accepted move arrived, none passed its target by more than the
+/// landing tolerance, and the following error stayed within
+/// `following_max` microsteps.
+fn assert_arrives_within(t: &Truth, following_max: i64) {
     assert!(
         t.lost.is_empty(),
         "{} accepted moves did not arrive: {:?}",
@@ -501,8 +508,8 @@ fn assert_truth(t: &Truth) {
         t.overshoot
     );
     assert!(
-        t.following <= 16,
-        "following error {} microsteps (> 1/8 full step)",
+        t.following <= following_max,
+        "following error {} microsteps (> {following_max})",
         t.following
     );
 }
@@ -534,22 +541,7 @@ fn every_accepted_move_arrives_on_eight_chips() {
 #[test]
 fn every_accepted_move_arrives_with_chip_oscillators_5_percent_off() {
     let t = random_run_with(4, 150, 0x05C1_11A7_0005, TICK_US, 50_000);
-    assert!(
-        t.lost.is_empty(),
-        "{} moves lost: {:?}",
-        t.lost.len(),
-        &t.lost[..t.lost.len().min(5)]
-    );
-    assert!(
-        t.overshoot <= LANDING_TOLERANCE,
-        "a move passed its target by {} microsteps",
-        t.overshoot
-    );
-    assert!(
-        t.following <= 256,
-        "following error {} microsteps",
-        t.following
-    );
+    assert_arrives_within(&t, 256);
 }
 
 #[test]
