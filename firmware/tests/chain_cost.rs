@@ -16,22 +16,13 @@
 fn main() {}
 
 #[cfg(target_os = "none")]
+#[macro_use]
 mod common;
 
 /// Batches (scripts/chain-cpu divides by it).
 #[cfg(target_os = "none")]
 const N: u32 = 200;
 
-#[cfg(target_os = "none")]
-macro_rules! marker {
-    ($name:ident, $v:expr) => {
-        #[inline(never)]
-        #[no_mangle]
-        pub extern "C" fn $name() {
-            core::hint::black_box($v as u32);
-        }
-    };
-}
 #[cfg(target_os = "none")]
 marker!(armcost_mark_off, 0x1111_0000u32);
 #[cfg(target_os = "none")]

@@ -11,22 +11,13 @@
 fn main() {}
 
 #[cfg(target_os = "none")]
+#[macro_use]
 mod common;
 
 /// Iterations (scripts/ioext-cpu divides by it).
 #[cfg(target_os = "none")]
 const N: u32 = 200;
 
-#[cfg(target_os = "none")]
-macro_rules! marker {
-    ($name:ident, $v:expr) => {
-        #[inline(never)]
-        #[no_mangle]
-        pub extern "C" fn $name() {
-            core::hint::black_box($v as u32);
-        }
-    };
-}
 #[cfg(target_os = "none")]
 marker!(mark_off, 0x1111_0000u32);
 #[cfg(target_os = "none")]

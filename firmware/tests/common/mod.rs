@@ -2,6 +2,20 @@
 //! each test needs, through the same `platform` and `board` functions.
 #![allow(dead_code)] // each test binary uses part of it
 
+/// A marker function for the armcount plugin (`scripts/chain-cpu`,
+/// `scripts/ioext-cpu`): the benches call it at the edges of a counted
+/// region, the plugin finds it by its symbol.
+#[allow(unused_macros)] // only the armcount benches use it
+macro_rules! marker {
+    ($name:ident, $v:expr) => {
+        #[inline(never)]
+        #[no_mangle]
+        pub extern "C" fn $name() {
+            core::hint::black_box($v as u32);
+        }
+    };
+}
+
 use firmware::board::{self, Pins};
 use firmware::drivers::clock::{self, Mono};
 use firmware::platform::{self, ResetCause};
