@@ -51,9 +51,7 @@ mod support {
 mod tests {
     use bridge_logic::bridge::BatchState;
     use bridge_logic::powerstep::chain::{ChainBus, Frames, Plan, MAX_DEVICES, MAX_WINDOWS};
-    use firmware::drivers::chain_spi::{
-        chain_spi, ChainBuffers, ChainSpiError, FEIF0, SCK_MAX_HZ, TCIF0, TEIF0,
-    };
+    use firmware::drivers::chain_spi::{ChainSpiError, FEIF0, SCK_MAX_HZ, TCIF0, TEIF0};
     use firmware::drivers::clock;
 
     use super::common;
@@ -63,20 +61,9 @@ mod tests {
 
     #[init]
     fn init() -> State {
-        let mut t = common::setup();
-        let p = t.pins;
-        let Some(bufs) = cortex_m::singleton!(: ChainBuffers = ChainBuffers::new()) else {
-            defmt::panic!("buffers taken twice");
-        };
+        let t = common::setup();
         let pclk2_hz = t.rcc.clocks.pclk2().raw();
-        let (port, dma) = chain_spi(
-            t.spi1,
-            (p.chain_sck, p.chain_miso, p.chain_mosi),
-            p.chain_cs,
-            t.tim7,
-            bufs,
-            &mut t.rcc,
-        );
+        let (port, dma) = common::chain(t);
         State {
             port,
             dma,

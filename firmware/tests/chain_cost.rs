@@ -47,21 +47,9 @@ marker!(armcost_mark_dump, 0x9999_0008u32);
 fn main() -> ! {
     use bridge_logic::bridge::BatchState;
     use bridge_logic::powerstep::chain::{Frames, MAX_DEVICES, MAX_WINDOWS};
-    use firmware::drivers::chain_spi::{chain_spi, ChainBuffers, TCIF0};
+    use firmware::drivers::chain_spi::TCIF0;
 
-    let mut t = common::setup();
-    let p = t.pins;
-    let Some(bufs) = cortex_m::singleton!(: ChainBuffers = ChainBuffers::new()) else {
-        defmt::panic!("buffers taken twice");
-    };
-    let (mut port, mut dma) = chain_spi(
-        t.spi1,
-        (p.chain_sck, p.chain_miso, p.chain_mosi),
-        p.chain_cs,
-        t.tim7,
-        bufs,
-        &mut t.rcc,
-    );
+    let (mut port, mut dma) = common::chain(common::setup());
     // No SysTick interrupt inside the counted regions (the driver gets its
     // time as an argument).
     #[allow(unsafe_code)]

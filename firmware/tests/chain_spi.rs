@@ -143,9 +143,7 @@ mod tests {
     use bridge_logic::powerstep::chain::{ChainBus, Frames, MAX_DEVICES, MAX_WINDOWS};
     use core::sync::atomic::Ordering;
     use cortex_m::peripheral::NVIC;
-    use firmware::drivers::chain_spi::{
-        chain_spi, ChainBuffers, CS_DESELECT_NS, CS_SETUP_NS, SCK_MAX_HZ,
-    };
+    use firmware::drivers::chain_spi::{CS_DESELECT_NS, CS_SETUP_NS, SCK_MAX_HZ};
     use firmware::drivers::clock;
     use stm32f4xx_hal::pac::Interrupt;
 
@@ -157,19 +155,9 @@ mod tests {
 
     #[init]
     fn init() -> State {
-        let mut t = common::setup();
-        let p = t.pins;
-        let Some(bufs) = cortex_m::singleton!(: ChainBuffers = ChainBuffers::new()) else {
-            defmt::panic!("buffers taken twice");
-        };
-        let (port, dma) = chain_spi(
-            t.spi1,
-            (p.chain_sck, p.chain_miso, p.chain_mosi),
-            p.chain_cs,
-            t.tim7,
-            bufs,
-            &mut t.rcc,
-        );
+        let t = common::setup();
+        let sysclk_hz = t.sysclk_hz;
+        let (port, dma) = common::chain(t);
         cortex_m::interrupt::free(|cs| DMA.borrow(cs).replace(Some(dma)));
         #[allow(unsafe_code)]
         // SAFETY: the handlers only touch the driver through `DMA`'s
@@ -178,10 +166,7 @@ mod tests {
             NVIC::unmask(Interrupt::DMA2_STREAM0);
             NVIC::unmask(Interrupt::TIM7);
         }
-        State {
-            port,
-            sysclk_hz: t.sysclk_hz,
-        }
+        State { port, sysclk_hz }
     }
 
     #[test]

@@ -49,28 +49,14 @@ mod support {
 #[defmt_test::tests]
 mod tests {
     use bridge_logic::ioext::{Action, SpiMode};
-    use firmware::drivers::ioext_spi::{IoExtBuffers, IoExtError, IoExtPort, Started};
+    use firmware::drivers::ioext_spi::{IoExtError, IoExtPort, Started};
 
     use super::common;
     use super::support::{plan, spi2};
 
     #[init]
     fn init() -> IoExtPort {
-        let mut t = common::setup();
-        let p = t.pins;
-        let Some(bufs) = cortex_m::singleton!(: IoExtBuffers = IoExtBuffers::new()) else {
-            defmt::panic!("buffers taken twice");
-        };
-        IoExtPort::new(
-            t.spi2,
-            t.tim1,
-            t.dma1,
-            t.dma2,
-            (p.ioext_sck, p.ioext_miso, p.ioext_mosi),
-            p.ioext_cs,
-            bufs,
-            &mut t.rcc,
-        )
+        common::ioext_port(common::setup())
     }
 
     #[test]

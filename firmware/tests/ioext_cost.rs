@@ -33,23 +33,7 @@ marker!(mark_dump, 0x5555_0004u32);
 #[cortex_m_rt::entry]
 fn main() -> ! {
     use bridge_logic::ioext::{clock_plan, Action, Clocks, SpiMode, TransferPlan, WireBits};
-    use firmware::drivers::ioext_spi::{IoExtBuffers, IoExtPort};
-
-    let mut t = common::setup();
-    let p = t.pins;
-    let Some(bufs) = cortex_m::singleton!(: IoExtBuffers = IoExtBuffers::new()) else {
-        defmt::panic!("buffers taken twice");
-    };
-    let mut port = IoExtPort::new(
-        t.spi2,
-        t.tim1,
-        t.dma1,
-        t.dma2,
-        (p.ioext_sck, p.ioext_miso, p.ioext_mosi),
-        p.ioext_cs,
-        bufs,
-        &mut t.rcc,
-    );
+    let mut port = common::ioext_port(common::setup());
     let plan = |bits: u16, n: u8| {
         let mut tx = WireBits::ZERO;
         for i in (0..usize::from(bits)).step_by(3) {

@@ -107,31 +107,18 @@ mod support {
 #[defmt_test::tests]
 mod tests {
     use bridge_logic::ioext::{Action, SpiMode};
-    use firmware::drivers::ioext_spi::{IoExtBuffers, IoExtPort, Started};
+    use firmware::drivers::ioext_spi::Started;
 
     use super::common;
     use super::support::{cs_is_high, mode_of, plan, transfer, State};
 
     #[init]
     fn init() -> State {
-        let mut t = common::setup();
-        let p = t.pins;
-        let Some(bufs) = cortex_m::singleton!(: IoExtBuffers = IoExtBuffers::new()) else {
-            defmt::panic!("buffers taken twice");
-        };
-        let port = IoExtPort::new(
-            t.spi2,
-            t.tim1,
-            t.dma1,
-            t.dma2,
-            (p.ioext_sck, p.ioext_miso, p.ioext_mosi),
-            p.ioext_cs,
-            bufs,
-            &mut t.rcc,
-        );
+        let t = common::setup();
+        let sysclk_hz = t.sysclk_hz;
         State {
-            port,
-            sysclk_hz: t.sysclk_hz,
+            port: common::ioext_port(t),
+            sysclk_hz,
         }
     }
 

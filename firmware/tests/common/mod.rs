@@ -138,3 +138,46 @@ pub fn long_plan(n: usize) -> bridge_logic::powerstep::Plan {
         Err(e) => defmt::panic!("long plan: {}", e),
     }
 }
+
+/// The chain driver's two halves on the target's SPI1, TIM7 and chain pins,
+/// with their `'static` buffers, as the app takes them.
+pub fn chain(
+    mut t: Target,
+) -> (
+    firmware::drivers::chain_spi::ChainPort,
+    firmware::drivers::chain_spi::ChainDma,
+) {
+    use firmware::drivers::chain_spi::{chain_spi, ChainBuffers};
+    let p = t.pins;
+    let Some(bufs) = cortex_m::singleton!(: ChainBuffers = ChainBuffers::new()) else {
+        defmt::panic!("buffers taken twice");
+    };
+    chain_spi(
+        t.spi1,
+        (p.chain_sck, p.chain_miso, p.chain_mosi),
+        p.chain_cs,
+        t.tim7,
+        bufs,
+        &mut t.rcc,
+    )
+}
+
+/// The I/O extension's board driver on the target's SPI2, TIM1, DMA1, DMA2
+/// and extension pins, with its `'static` buffers, as the app takes it.
+pub fn ioext_port(mut t: Target) -> firmware::drivers::ioext_spi::IoExtPort {
+    use firmware::drivers::ioext_spi::{IoExtBuffers, IoExtPort};
+    let p = t.pins;
+    let Some(bufs) = cortex_m::singleton!(: IoExtBuffers = IoExtBuffers::new()) else {
+        defmt::panic!("buffers taken twice");
+    };
+    IoExtPort::new(
+        t.spi2,
+        t.tim1,
+        t.dma1,
+        t.dma2,
+        (p.ioext_sck, p.ioext_miso, p.ioext_mosi),
+        p.ioext_cs,
+        bufs,
+        &mut t.rcc,
+    )
+}
