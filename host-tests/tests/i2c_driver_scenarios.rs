@@ -52,6 +52,18 @@ impl WireBench {
         self.rig.read(addr, n).expect("read ACKed")
     }
 
+    /// Every query of [`QUERIES`] at `addr` answers what the protocol
+    /// bench answers (`when` names the moment in a failure).
+    fn queries_match(&mut self, proto: &mut I2cBench, addr: u8, when: &str) {
+        for (cmd, n) in QUERIES {
+            assert_eq!(
+                self.query(addr, cmd, n),
+                proto.query(addr, cmd, n),
+                "0x{cmd:02X} {when}"
+            );
+        }
+    }
+
     fn clean(&self) {
         let m = self.rig.model();
         assert_eq!(m.violations(), &[], "{}", m.trace());
@@ -117,13 +129,7 @@ const WRITES: [&[u8]; 21] = [
 fn every_query_returns_the_protocol_benchs_bytes_at_both_addresses() {
     let (mut wire, mut proto) = (WireBench::new(0), reference());
     for addr in [A0, A1] {
-        for (cmd, n) in QUERIES {
-            assert_eq!(
-                wire.query(addr, cmd, n),
-                proto.query(addr, cmd, n),
-                "0x{cmd:02X} at {addr}"
-            );
-        }
+        wire.queries_match(&mut proto, addr, &format!("at {addr}"));
     }
     wire.clean();
 }
@@ -141,13 +147,7 @@ fn every_write_then_its_read_back_matches_the_protocol_bench() {
             proto.read(A0, 6),
             "read after {bytes:02X?}"
         );
-        for (cmd, n) in QUERIES {
-            assert_eq!(
-                wire.query(A0, cmd, n),
-                proto.query(A0, cmd, n),
-                "0x{cmd:02X} after {bytes:02X?}"
-            );
-        }
+        wire.queries_match(&mut proto, A0, &format!("after {bytes:02X?}"));
     }
     wire.clean();
 }
@@ -191,13 +191,7 @@ fn every_transaction_survives_slow_interrupts() {
             assert!(wire.write(A1, bytes), "latency {latency}");
             assert!(proto.write(A1, bytes));
         }
-        for (cmd, n) in QUERIES {
-            assert_eq!(
-                wire.query(A1, cmd, n),
-                proto.query(A1, cmd, n),
-                "0x{cmd:02X}, latency {latency}"
-            );
-        }
+        wire.queries_match(&mut proto, A1, &format!("with latency {latency}"));
         wire.clean();
     }
 }
