@@ -116,6 +116,80 @@ pub const fn fit(hz: u32, chips: usize) -> Rate {
     }
 }
 
+/// The control loop's count of ticks as the bridge's millisecond clock and
+/// the 10 Hz housekeeping cadence, without a division per tick (a 64-bit
+/// division is a library call on the Cortex-M4): the period's µs are
+/// accumulated, and the cadence counts down from a length worked out once.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TickClock {
+    period_us: u32,
+    /// µs past the last whole millisecond (< 1000).
+    us: u32,
+    ms: u64,
+    housekeeping_every: u32,
+    housekeeping_in: u32,
+}
+
+impl TickClock {
+    pub const fn new(rate: Rate) -> TickClock {
+        let every = if rate.hz / 10 == 0 { 1 } else { rate.hz / 10 };
+        TickClock {
+            period_us: rate.us,
+            us: 0,
+            ms: 0,
+            housekeeping_every: every,
+            housekeeping_in: every,
+        }
+    }
+
+    /// One tick: the bridge's time after it, ms (`ticks · period / 1000`,
+    /// rounded down), and whether the 10 Hz housekeeping is due.
+    pub fn tick(&mut self) -> (u64, bool) {
+        self.us = self.us.saturating_add(self.period_us);
+        while self.us >= 1000 {
+            self.us -= 1000;
+            self.ms = self.ms.saturating_add(1);
+        }
+        self.housekeeping_in -= 1;
+        let due = self.housekeeping_in == 0;
+        if due {
+            self.housekeeping_in = self.housekeeping_every;
+        }
+        (self.ms, due)
+    }
+}
+
+#[cfg(test)]
+mod tick_clock_tests {
+    use super::*;
+
+    /// What the control loop computed before, with a division per tick.
+    fn by_division(rate: Rate, ticks: u64) -> (u64, bool) {
+        (
+            ticks * u64::from(rate.us) / 1000,
+            ticks % (u64::from(rate.hz) / 10).max(1) == 0,
+        )
+    }
+
+    #[test]
+    fn the_clock_and_the_cadence_equal_the_divisions_at_every_rate() {
+        for hz in [500, 1000, 2000, 2500, 5000] {
+            let rate = fit(hz, 0);
+            let mut c = TickClock::new(rate);
+            for ticks in 1..=25_000u64 {
+                assert_eq!(c.tick(), by_division(rate, ticks), "{hz} Hz, tick {ticks}");
+            }
+        }
+    }
+
+    #[test]
+    fn housekeeping_is_due_ten_times_a_second() {
+        let mut c = TickClock::new(fit(2500, 0));
+        let due = (0..2500).filter(|_| c.tick().1).count();
+        assert_eq!(due, 10);
+    }
+}
+
 #[cfg(test)]
 mod fit_tests {
     use super::*;
