@@ -126,7 +126,7 @@ mod app {
 
     /// Control-loop rate: the build setting `STEPBRIDGE_TICK_HZ` (default
     /// 1 kHz; `bridge_logic::rate`).
-    use bridge_logic::rate::{self, Rate, TICK_HZ, TICK_US};
+    use bridge_logic::rate::{self, Rate, TickClock, TICK_HZ};
     /// STBY/RESET low time at power-up (datasheet minimum is well below).
     const RESET_PULSE_MS: u32 = 1;
     /// Wait after releasing STBY/RESET before the first SPI byte.
@@ -165,8 +165,8 @@ mod app {
     struct Local {
         /// TIM2 as the control-loop timer (update interrupt).
         tick: TickTimer,
-        /// Control ticks since boot (the bridge's ms clock is derived from it).
-        ticks: u64,
+        /// The bridge's ms clock and the 10 Hz cadence, counted in ticks.
+        clock: TickClock,
         /// The tick rate in use (`rate::fit`: the build setting, or slower
         /// for a chain that does not fit it).
         rate: Rate,
@@ -255,14 +255,14 @@ mod app {
 
         let mut store = Store::new(platform::settings_flash(dp.FLASH));
         let (settings, source) = load_settings(&mut store);
-        let mut bridge = Bridge::new(bus, Board::REFERENCE, settings, source, TICK_US);
+        // A chain whose batch and computation do not fit the build's tick
+        // runs at a slower one (a skipped tick would run the motors slow).
+        let (mut bridge, rate) =
+            Bridge::new_fitted(bus, Board::REFERENCE, settings, source, TICK_HZ);
         match bridge.chain_error() {
             None => info!("chain: {=usize} powerSTEP01", bridge.axes()),
             Some(e) => error!("chain: detection failed ({}), running with 0 axes", e),
         }
-        // A chain whose batch and computation do not fit the build's tick
-        // runs at a slower one (a skipped tick would run the motors slow).
-        let rate = rate::fit(TICK_HZ, bridge.axes());
         if rate.derated {
             warn!(
                 "control tick: {=u32} Hz instead of {=u32} Hz: {=usize} chips need {=u64} us per tick",
@@ -270,13 +270,6 @@ mod app {
                 TICK_HZ,
                 bridge.axes(),
                 rate::tick_need_ns(bridge.axes()) / 1000
-            );
-            bridge = Bridge::new(
-                bridge.into_bus(),
-                Board::REFERENCE,
-                settings,
-                source,
-                rate.us,
             );
         }
         bridge.set_reset_cause(ResetCause::from_rcc_csr(reset_flags));
@@ -356,7 +349,7 @@ mod app {
             },
             Local {
                 tick,
-                ticks: 0,
+                clock: TickClock::new(rate),
                 rate,
                 led: pins.led,
                 stby: Some(stby),
@@ -423,7 +416,7 @@ mod app {
         priority = 3,
         shared = [bridge, chain],
         local = [
-            tick, ticks, rate, led, stby, watchdog, io_actions, io_pending,
+            tick, clock, rate, led, stby, watchdog, io_actions, io_pending,
             rx: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS],
             chain_failing: bool = false,
         ]
@@ -434,10 +427,8 @@ mod app {
         cx.local.watchdog.feed();
         // The bridge's clock is milliseconds: above 1 kHz several ticks
         // share one.
-        *cx.local.ticks += 1;
-        let ticks = *cx.local.ticks;
+        let (now, housekeeping_due) = cx.local.clock.tick();
         let rate = *cx.local.rate;
-        let now = ticks * u64::from(rate.us) / 1000;
         // The batch started by the previous tick (its replies copied out of
         // the DMA buffer; past its deadline it is stopped as a timeout).
         let now_us = clock::now_us();
@@ -470,7 +461,7 @@ mod app {
             }
         }
         cx.local.led.set_state(on.into());
-        if ticks % (u64::from(rate.hz) / 10).max(1) == 0 {
+        if housekeeping_due {
             // Still busy with the previous round: skip this one.
             let _ = housekeeping::spawn();
         }

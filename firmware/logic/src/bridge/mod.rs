@@ -315,11 +315,44 @@ impl<B: ChainBus> Bridge<B> {
         source: SettingsSource,
         tick_us: u32,
     ) -> Bridge<B> {
+        let (chain, n, chain_error) = Self::detect(bus);
+        Self::build(chain, n, chain_error, board, settings, source, tick_us)
+    }
+
+    /// [`Bridge::new`] at the fastest tick rate up to `build_hz` that the
+    /// detected chain fits ([`rate::fit`]): the chain is detected once,
+    /// and the axes are set up for the rate returned with the bridge.
+    pub fn new_fitted(
+        bus: B,
+        board: Board,
+        settings: Settings,
+        source: SettingsSource,
+        build_hz: u32,
+    ) -> (Bridge<B>, crate::rate::Rate) {
+        let (chain, n, chain_error) = Self::detect(bus);
+        let rate = crate::rate::fit(build_hz, n);
+        let bridge = Self::build(chain, n, chain_error, board, settings, source, rate.us);
+        (bridge, rate)
+    }
+
+    /// The chain on `bus` and its length (0 and why, if detection failed).
+    fn detect(bus: B) -> (Chain<B>, usize, Option<ChainError<B::Error>>) {
         let mut chain = Chain::new(bus);
-        let (n, chain_error) = match chain.detect() {
-            Ok(n) => (n, None),
-            Err(e) => (0, Some(e)),
-        };
+        match chain.detect() {
+            Ok(n) => (chain, n, None),
+            Err(e) => (chain, 0, Some(e)),
+        }
+    }
+
+    fn build(
+        chain: Chain<B>,
+        n: usize,
+        chain_error: Option<ChainError<B::Error>>,
+        board: Board,
+        settings: Settings,
+        source: SettingsSource,
+        tick_us: u32,
+    ) -> Bridge<B> {
         let mut group = AxisGroup::new();
         let mut devices = Vec::new();
         for s in settings.axes.iter().take(n) {
@@ -401,12 +434,6 @@ impl<B: ChainBus> Bridge<B> {
 
     pub fn chain(&self) -> &Chain<B> {
         &self.chain
-    }
-
-    /// The chain's bus back, the bridge gone (the firmware builds the bridge
-    /// again when the chain it found needs a slower tick: `rate::fit`).
-    pub fn into_bus(self) -> B {
-        self.chain.into_bus()
     }
 
     pub fn chain_mut(&mut self) -> &mut Chain<B> {

@@ -473,12 +473,6 @@ impl<B: ChainBus> Chain<B> {
         &self.bus
     }
 
-    /// Give the bus back (e.g. to build the bridge again at another tick
-    /// rate once the chain's length is known).
-    pub fn into_bus(self) -> B {
-        self.bus
-    }
-
     pub fn bus_mut(&mut self) -> &mut B {
         &mut self.bus
     }

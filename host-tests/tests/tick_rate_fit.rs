@@ -1,0 +1,47 @@
+//! The bridge at the fastest tick rate its chain fits (`Bridge::new_fitted`,
+//! what the firmware's `init` calls): the chain is detected once, and the
+//! axes run at the rate returned.
+
+use bridge_logic::bridge::{Bridge, SettingsSource};
+use bridge_logic::postep60::{Board, Settings};
+use bridge_logic::rate;
+use bridge_logic::sim::SimChain;
+
+fn windows_of_one_detection(n: usize) -> u64 {
+    let b = Bridge::new(
+        SimChain::new(n),
+        Board::REFERENCE,
+        Settings::FACTORY,
+        SettingsSource::Stored,
+        1000,
+    );
+    b.chain().bus().windows()
+}
+
+#[test]
+fn eight_chips_in_a_5_khz_build_run_at_the_fitted_rate_after_one_detection() {
+    let (b, r) = Bridge::new_fitted(
+        SimChain::new(8),
+        Board::REFERENCE,
+        Settings::FACTORY,
+        SettingsSource::Stored,
+        5000,
+    );
+    assert_eq!(r, rate::fit(5000, 8));
+    assert!(r.derated, "8 chips do not fit 5 kHz");
+    assert_eq!(b.axes(), 8);
+    assert_eq!(b.chain().bus().windows(), windows_of_one_detection(8));
+}
+
+#[test]
+fn a_chain_that_fits_keeps_the_build_rate() {
+    let (b, r) = Bridge::new_fitted(
+        SimChain::new(4),
+        Board::REFERENCE,
+        Settings::FACTORY,
+        SettingsSource::Stored,
+        5000,
+    );
+    assert_eq!((r.hz, r.us, r.derated), (5000, 200, false));
+    assert_eq!(b.axes(), 4);
+}
