@@ -33,15 +33,14 @@ fn address(hi: u8, lo: u8) -> u16 {
 
 /// Run the traffic in `data`; returns the requests made.
 pub fn check_ext_stream(data: &[u8]) -> usize {
-    let (mut bridge, mut clock) = crate::sim_bridge::template(|| {
+    let (mut bridge, mut clock) = crate::sim_bridge::template("ext_stream", || {
         let mut s = Settings::FACTORY;
         s.axes[0].end_switch = true;
         let mut bridge = new_bridge(2, s, Board::REFERENCE);
         let mut clock = SimClock::new(TICK_US);
         clock.run(&mut bridge, 30);
-        ExtTemplate(bridge, clock)
-    })
-    .into_parts();
+        (bridge, clock)
+    });
     let mut it = data.iter().copied();
     let mut homing = false;
     let mut requests = 0;
@@ -87,23 +86,4 @@ pub fn check_ext_stream(data: &[u8]) -> usize {
         }
     }
     requests
-}
-
-/// This harness's template (its own type: the USB harness's template is a
-/// plain `(Bridge, SimClock)` with other settings).
-#[derive(Clone)]
-struct ExtTemplate(
-    bridge_logic::bridge::Bridge<bridge_logic::sim::SimChain>,
-    SimClock,
-);
-
-impl ExtTemplate {
-    fn into_parts(
-        self,
-    ) -> (
-        bridge_logic::bridge::Bridge<bridge_logic::sim::SimChain>,
-        SimClock,
-    ) {
-        (self.0, self.1)
-    }
 }

@@ -115,7 +115,7 @@ pub const MOTION: [u8; 8] = [0x50, 0x54, 0x05, 0x55, 0x71, 0x5E, 0x70, 0x73];
 /// for a tick: a count of milliseconds (mod 20). Checks: no panic, and no
 /// chip moves unless a write started with a command that may move a motor.
 pub fn check_i2c_stream(data: &[u8]) {
-    let mut b = crate::sim_bridge::template(|| I2cBench::new(2, Settings::FACTORY));
+    let mut b = crate::sim_bridge::template("i2c_stream", || I2cBench::new(2, Settings::FACTORY));
     let mut moved_by_command = false;
     let mut it = data.iter().copied();
     while let Some(tag) = it.next() {

@@ -423,7 +423,8 @@ pub struct StreamReport {
 /// the timing makes a frame of ≥ 4 bytes gets a correct CRC first, so that
 /// most frames reach the command layer.
 pub fn check_stream(records: &[(u8, u64)], fix_crc: bool) -> StreamReport {
-    let mut line = crate::sim_bridge::template(|| ModbusBench::new(2, Settings::FACTORY));
+    let mut line =
+        crate::sim_bridge::template("modbus_stream", || ModbusBench::new(2, Settings::FACTORY));
     let timing = line.timing;
     let mut records = records.to_vec();
     if fix_crc {

@@ -62,25 +62,24 @@ pub fn settle<H>(
     panic!("not settled after {cap} ms");
 }
 
-/// A clone of a value built once per thread by `make` (the fuzz targets and
-/// property tests start every input from one configured bridge instead of
-/// configuring the simulated chips again for each).
-pub fn template<T: Clone + 'static>(make: impl FnOnce() -> T) -> T {
+/// A clone of the value named `name`, built once per thread by `make` (the
+/// fuzz targets and property tests start every input from one configured
+/// bridge instead of configuring the simulated chips again for each). Each
+/// call site names its own template.
+pub fn template<T: Clone + 'static>(name: &'static str, make: impl FnOnce() -> T) -> T {
     use std::any::Any;
     use std::cell::RefCell;
     use std::collections::HashMap;
     thread_local! {
-        static TEMPLATES: RefCell<HashMap<std::any::TypeId, Box<dyn Any>>> =
+        static TEMPLATES: RefCell<HashMap<&'static str, Box<dyn Any>>> =
             RefCell::new(HashMap::new());
     }
     TEMPLATES.with(|t| {
         let mut t = t.borrow_mut();
-        let entry = t
-            .entry(std::any::TypeId::of::<T>())
-            .or_insert_with(|| Box::new(make()));
+        let entry = t.entry(name).or_insert_with(|| Box::new(make()));
         match entry.downcast_ref::<T>() {
             Some(v) => v.clone(),
-            None => unreachable!("keyed by the type"),
+            None => panic!("template {name:?} used with two types"),
         }
     })
 }

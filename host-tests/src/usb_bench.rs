@@ -209,8 +209,7 @@ pub const MOTION: [u8; 10] = [0x02, 0x80, 0x83, 0x82, 0x90, 0xA1, 0xB1, 0xB2, 0x
 /// Input: ops of a tag byte (bit 0: 0 report, 1 tick), then for a report a
 /// length byte (mod 80) and that many bytes; for a tick a count of ms (mod 30).
 pub fn check_usb_stream(data: &[u8]) -> usize {
-    // (A different type from other harnesses' templates: the clock rides along.)
-    let (mut bridge, mut clock) = crate::sim_bridge::template(|| {
+    let (mut bridge, mut clock) = crate::sim_bridge::template("usb_stream", || {
         let mut bridge = crate::sim_bridge::new_bridge(2, Settings::FACTORY, Board::REFERENCE);
         let mut clock = SimClock::new(TICK_US);
         clock.run(&mut bridge, 30);
