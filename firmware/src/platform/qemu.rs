@@ -42,7 +42,7 @@
 use bridge_logic::bridge::BatchState;
 use bridge_logic::ioext::{Action, WireBits};
 use bridge_logic::postep60::analog::AnalogSample;
-use bridge_logic::powerstep::chain::{Frames, Plan};
+use bridge_logic::powerstep::chain::{clock_windows, Frames, Plan};
 use bridge_logic::powerstep::ChainBus;
 use bridge_logic::sim::{ConsoleCommand, HomeCam, ShiftChain, SimChain};
 use bridge_logic::transport::i2c::{I2cSlave, I2cTarget};
@@ -206,11 +206,7 @@ impl ChainDma {
             return Err(ChainSpiError::Busy);
         }
         let (windows, n) = (plan.windows(), plan.devices());
-        for (w, row) in self.bufs.rx_mut().iter_mut().enumerate().take(windows) {
-            if let (Some(tx), Some(rx)) = (plan.window(w), row.get_mut(..n)) {
-                port.window(tx, rx)?;
-            }
-        }
+        clock_windows(port, plan, n, self.bufs.rx_mut())?;
         self.done = Some((windows, n));
         Ok(())
     }

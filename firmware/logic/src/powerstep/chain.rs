@@ -529,14 +529,7 @@ impl<B: ChainBus> Chain<B> {
     /// (between [`Chain::begin`] and [`Chain::end`]); row `w` of `rx` gets
     /// window `w`'s N bytes. Stops at the first bus error.
     pub fn clock(&mut self, plan: &Plan, rx: &mut Frames) -> Result<(), B::Error> {
-        let n = self.len();
-        for (tx, rx) in plan.tx.iter().zip(rx.iter_mut()).take(plan.windows()) {
-            let (Some(tx), Some(rx)) = (tx.get(..n), rx.get_mut(..n)) else {
-                break;
-            };
-            self.bus.window(tx, rx)?;
-        }
-        Ok(())
+        clock_windows(&mut self.bus, plan, usize::from(self.n), rx)
     }
 
     /// Before a plan's windows go out: the plan must fit this chain, and a
@@ -609,6 +602,25 @@ impl<B: ChainBus> Chain<B> {
         self.out_of_step = false;
         Ok(())
     }
+}
+
+/// Clock `plan`'s windows through `bus`'s blocking window, the first `n`
+/// bytes of each (the chain's length): row `w` of `rx` gets window `w`'s
+/// reply. Stops at the first bus error. ([`Chain::clock`]; the QEMU image's
+/// chain driver clocks its batches through the simulated chips with it.)
+pub fn clock_windows<B: ChainBus>(
+    bus: &mut B,
+    plan: &Plan,
+    n: usize,
+    rx: &mut Frames,
+) -> Result<(), B::Error> {
+    for (tx, rx) in plan.tx.iter().zip(rx.iter_mut()).take(plan.windows()) {
+        let (Some(tx), Some(rx)) = (tx.get(..n), rx.get_mut(..n)) else {
+            break;
+        };
+        bus.window(tx, rx)?;
+    }
+    Ok(())
 }
 
 #[cfg(test)]
