@@ -385,20 +385,16 @@ impl<B: ChainBus> Bridge<B> {
         let (Some(d), Some(a)) = (self.devices.get_mut(k), self.group.axis_mut(k)) else {
             return Err(ExtError::IllegalAddress);
         };
-        if offset == homing::END_SWITCH {
-            return match data {
-                // Not while homing runs into the switch it uses.
-                [v] if *v <= 3 && a.is_homing() => Err(ExtError::Refused),
-                [v] if *v <= 3 => {
-                    d.settings.end_switch = v & 1 != 0;
-                    d.settings.end_switch_nc = v & 2 != 0;
-                    Ok(())
-                }
-                _ => Err(ExtError::IllegalValue),
-            };
-        }
-        let h = &mut d.settings.homing;
+        let s = &mut d.settings;
         match (offset, data) {
+            // Not while homing runs into the switch it uses.
+            (homing::END_SWITCH, [v]) if *v <= 3 && a.is_homing() => Err(ExtError::Refused),
+            (homing::END_SWITCH, [v]) if *v <= 3 => {
+                s.end_switch = v & 1 != 0;
+                s.end_switch_nc = v & 2 != 0;
+                Ok(())
+            }
+            (homing::END_SWITCH, _) => Err(ExtError::IllegalValue),
             (homing::COMMAND, [1]) => match d.start_homing(a) {
                 Ok(()) => Ok(()),
                 Err(e) => {
@@ -414,24 +410,24 @@ impl<B: ChainBus> Bridge<B> {
             }
             (homing::COMMAND, [_]) => Err(ExtError::IllegalValue),
             (homing::DIRECTION, [v]) if *v <= 1 => {
-                h.forward = *v == 1;
+                s.homing.forward = *v == 1;
                 Ok(())
             }
             (homing::DIRECTION, [_]) => Err(ExtError::IllegalValue),
             (homing::SEARCH_SPEED, [_, _]) => {
-                h.search_speed = get32(data).max(1);
+                s.homing.search_speed = get32(data).max(1);
                 Ok(())
             }
             (homing::RELEASE_SPEED, [_, _]) => {
-                h.release_speed = get32(data).max(1);
+                s.homing.release_speed = get32(data).max(1);
                 Ok(())
             }
             (homing::MAX_TRAVEL, [_, _]) => {
-                h.max_travel = get32(data);
+                s.homing.max_travel = get32(data);
                 Ok(())
             }
             (homing::TIMEOUT_S, [v]) => {
-                h.timeout_s = *v;
+                s.homing.timeout_s = *v;
                 Ok(())
             }
             _ => Err(ExtError::IllegalAddress),
