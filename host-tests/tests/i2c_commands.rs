@@ -908,3 +908,29 @@ fn current_speed_0x44_reads_speeds_above_32767() {
     b.run(1500);
     assert_eq!(le_u16(&b.query(A0, 0x44, 2)), 50_000);
 }
+
+#[test]
+fn a_write_longer_than_its_command_does_not_move_and_is_counted() {
+    let mut b = bench();
+    // 25 bytes: beyond the slave's 16-byte buffer.
+    let mut long = vec![0x50, 0x40, 0x01, 0x00, 0x00];
+    long.extend([0u8; 20]);
+    b.write(A0, &long);
+    // One byte more than 0x50 takes.
+    b.write(A0, &[0x50, 0xA0, 0x00, 0x00, 0x00, 0x00]);
+    // A query with a stray data byte, and 0x73 with half a register.
+    b.write(A0, &[0x40, 0x00]);
+    b.write(A0, &[0x73, 0x01, 0x13, 0x00, 0x17, 0x00]);
+    b.run(500);
+    assert_eq!(b.chip(0).abs_pos(), 0, "nothing moved");
+    assert_eq!(b.bridge.diag.i2c_long, 4);
+    assert_eq!(
+        b.read(A0, 4).unwrap(),
+        [0, 0, 0, 0],
+        "a read after it returns zeros"
+    );
+    // The well-formed command still works.
+    b.write(A0, &[0x50, 0xA0, 0x00, 0x00, 0x00]);
+    b.settle(30_000);
+    assert_eq!(b.chip(0).abs_pos(), phys(160));
+}

@@ -104,7 +104,9 @@ pub mod diag {
     pub const BUILD_ID: u8 = 0x44;
     /// 0 no save yet, 1 the last save succeeded, 2 it failed.
     pub const LAST_SAVE: u8 = 0x46;
-    pub const LEN: usize = 0x47;
+    /// I2C writes longer than their command (refused), u32.
+    pub const I2C_LONG: u8 = 0x47;
+    pub const LEN: usize = 0x49;
 }
 
 /// Homing (0x04nn, per axis).
@@ -309,6 +311,7 @@ impl<B: ChainBus> Bridge<B> {
             (diag::MODBUS_EXCEPTIONS, m.exceptions),
             (diag::I2C_UNKNOWN, d.i2c_unknown),
             (diag::I2C_SHORT, d.i2c_short),
+            (diag::I2C_LONG, d.i2c_long),
             (diag::USB_REPORTS, d.usb_reports),
             (diag::USB_BAD, d.usb_bad),
             (diag::USB_UNKNOWN, d.usb_unknown),

@@ -31,7 +31,10 @@ fn port(which: Which) -> usize {
 impl<B: ChainBus> I2cTarget for Bridge<B> {
     fn i2c_write(&mut self, w: Write<'_>) {
         let p = port(w.which);
-        let decoded = i2c::decode(w.bytes);
+        let decoded = match w.bytes.first() {
+            Some(&command) if w.overlong => Err(I2cError::Long { command, takes: 0 }),
+            _ => i2c::decode(w.bytes),
+        };
         let axis = self
             .ports
             .get(p)
@@ -44,6 +47,10 @@ impl<B: ChainBus> I2cTarget for Bridge<B> {
             }
             Err(I2cError::Short { .. }) => {
                 self.diag.i2c_short = self.diag.i2c_short.saturating_add(1);
+                None
+            }
+            Err(I2cError::Long { .. }) => {
+                self.diag.i2c_long = self.diag.i2c_long.saturating_add(1);
                 None
             }
             Ok(I2cCommand::SelectAxis(k)) => {

@@ -138,6 +138,8 @@ pub enum RunMode {
 pub struct Diagnostics {
     pub i2c_unknown: u32,
     pub i2c_short: u32,
+    /// I2C writes with more bytes than their command takes (refused).
+    pub i2c_long: u32,
     /// Requests a device refused (wrong mode, asleep, faulted, ignored values…).
     pub refused: u32,
     pub chain_errors: u32,

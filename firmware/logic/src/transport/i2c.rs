@@ -9,7 +9,12 @@
 //!   is fresh) — repeatable: reading again recomputes it. Bytes past the end
 //!   of the response read as 0x00.
 //! * Writes longer than [`WRITE_MAX`] bytes are truncated and the
-//!   transaction is flagged as overlong; the target decides what that means.
+//!   transaction is flagged as overlong; the target refuses it (a
+//!   transaction that is not a well-formed command changes nothing).
+//! * [`decode`] takes a command only with exactly the data bytes it needs
+//!   ([`I2cError::Short`] with fewer, [`I2cError::Long`] with more): the
+//!   manual gives every command a fixed length, and a write with a stray
+//!   byte is not the command its first bytes look like.
 //! * A bus error (BERR, arbitration loss, overrun) drops the transaction in
 //!   progress; nothing is executed from it.
 //! * Never panics: every byte from the bus goes through bounded buffers.
@@ -222,12 +227,17 @@ pub enum I2cError {
     Unknown(u8),
     /// Fewer data bytes than the command needs.
     Short { command: u8, needed: u8 },
+    /// More data bytes than the command takes (or more than the slave's
+    /// buffer holds).
+    Long { command: u8, takes: u8 },
 }
 
 /// Builds a command from its data bytes.
 type Build = fn(&[u8]) -> I2cCommand;
 
 /// Data bytes after the command byte, and how to build the command.
+/// Two commands take a choice of lengths: 0x70 (0 or 1) and 0x73 (2 + 2 per
+/// register, 1..=3 registers); [`lengths`] says which.
 fn shape(cmd: u8) -> Option<(u8, Build)> {
     use I2cCommand as C;
     fn q(q: Query) -> I2cCommand {
@@ -335,8 +345,18 @@ fn shape(cmd: u8) -> Option<(u8, Build)> {
     })
 }
 
-/// Decode a master write (`bytes[0]` is the command). Extra data bytes beyond
-/// what the command takes are ignored, as a PoStep60 does.
+/// Whether `n` data bytes are a length command `cmd` takes, given that it
+/// takes at least `needed`.
+fn lengths(cmd: u8, needed: u8, n: usize) -> bool {
+    match cmd {
+        SELECT_AXIS => n <= 1,
+        EXT_WRITE => n % 2 == 0 && (4..=2 + 2 * EXT_MAX).contains(&n),
+        _ => n == usize::from(needed),
+    }
+}
+
+/// Decode a master write (`bytes[0]` is the command): only with exactly the
+/// data bytes the command takes (module doc).
 pub fn decode(bytes: &[u8]) -> Result<I2cCommand, I2cError> {
     let (&cmd, data) = bytes.split_first().ok_or(I2cError::Unknown(0))?;
     let (needed, build) = shape(cmd).ok_or(I2cError::Unknown(cmd))?;
@@ -344,6 +364,12 @@ pub fn decode(bytes: &[u8]) -> Result<I2cCommand, I2cError> {
         return Err(I2cError::Short {
             command: cmd,
             needed,
+        });
+    }
+    if !lengths(cmd, needed, data.len()) {
+        return Err(I2cError::Long {
+            command: cmd,
+            takes: needed,
         });
     }
     Ok(build(data))
