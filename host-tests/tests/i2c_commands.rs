@@ -910,6 +910,50 @@ fn current_speed_0x44_reads_speeds_above_32767() {
 }
 
 #[test]
+fn moving_off_a_pressed_end_switch_completes_the_move() {
+    // Manual §6: "End switch reacts only on change of end switch state.
+    // Position change request after end switch touched can be set in either
+    // direction." The box stops when the switch becomes pressed (closed for
+    // a normally open switch, open for a normally closed one), not when it
+    // is released: a move off the switch runs to its target.
+    use bridge_logic::sim::HomeCam;
+    for nc in [false, true] {
+        let mut b = I2cBench::new(
+            1,
+            settings_with(|a| {
+                a.end_switch = true;
+                a.end_switch_nc = nc;
+                a.max_speed = 2000;
+            }),
+        );
+        let edge = i64::from(phys(-1000));
+        b.chip_mut(0).set_home_cam(Some(HomeCam { edge, nc }));
+        b.run(20);
+        // Into the switch: stopped just past its pressed edge.
+        b.write(A0, &[0x50, 0x48, 0xF4, 0xFF, 0xFF]); // −3000
+        b.settle(30_000);
+        let at = i64::from(b.chip(0).abs_pos());
+        assert!(
+            (edge - 8 * 16..=edge).contains(&at),
+            "nc {nc}: stopped at {at}, the edge is {edge}"
+        );
+        // Off it: the release edge does not stop the move.
+        b.write(A0, &[0x50, 0xD0, 0x07, 0x00, 0x00]); // 2000
+        b.settle(30_000);
+        assert_eq!(
+            b.chip(0).abs_pos(),
+            phys(2000),
+            "nc {nc}: the move off the switch arrived"
+        );
+        // And into it again from the other side: stopped again.
+        b.write(A0, &[0x50, 0x48, 0xF4, 0xFF, 0xFF]);
+        b.settle(30_000);
+        let at = i64::from(b.chip(0).abs_pos());
+        assert!((edge - 8 * 16..=edge).contains(&at), "nc {nc}: {at}");
+    }
+}
+
+#[test]
 fn a_write_longer_than_its_command_does_not_move_and_is_counted() {
     let mut b = bench();
     // 25 bytes: beyond the slave's 16-byte buffer.

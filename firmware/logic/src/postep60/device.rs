@@ -27,9 +27,10 @@
 //!   the idle current 10 s after the last motion (driver status 3); above the
 //!   temperature limit run and hold currents drop to the overheat current
 //!   (driver status 4) until the temperature is 2 °C below the limit.
-//! * **End switch** (when enabled): any change of the switch level stops the
-//!   axis at once; a new target in either direction is then accepted
-//!   (manual 7.5.1). NO/NC only changes what the pin status reports.
+//! * **End switch** (when enabled): the switch becoming pressed (closed for
+//!   normally open, open for normally closed) stops the axis at once; its
+//!   release does not, so a move off the switch completes. A new target in
+//!   either direction is accepted after the stop (manual §6 and 7.5.1).
 //! * **BINx** (mode 5): a press (falling edge) of BIN1/BIN2 moves by BIN1/BIN2
 //!   steps from the current target.
 //! * **Auto run** (mode 6): at power-up the axis runs at max speed; Set
@@ -470,18 +471,29 @@ impl Device {
             .unwrap_or(axis.status().switch_closed())
     }
 
+    /// Stop when the end switch becomes pressed — closed for a normally
+    /// open switch, open for a normally closed one — and only then: a move
+    /// off a pressed switch runs to its target (manual §6: "End switch
+    /// reacts only on change of end switch state. Position change request
+    /// after end switch touched can be set in either direction").
     fn watch_end_switch(&mut self, axis: &mut Axis) {
         let closed = self.end_switch_closed(axis);
-        let changed = self.switch_closed.is_some_and(|prev| prev != closed);
+        let nc = self.settings.end_switch_nc;
+        let pressed_now = self
+            .switch_closed
+            .is_some_and(|prev| prev != closed && closed != nc);
         self.switch_closed = Some(closed);
         // Homing runs into the switch on purpose.
-        if changed && self.settings.end_switch && !axis.is_homing() {
+        if pressed_now && self.settings.end_switch && !axis.is_homing() {
             axis.stop_now();
         }
     }
 
     /// Start homing with the stored parameters (extension): the end switch
-    /// must be enabled, the axis awake, unfaulted and at rest.
+    /// must be enabled, the axis awake, unfaulted and at rest, and the
+    /// sequence bounded (a max travel or a timeout). The search and release
+    /// speeds are capped at the axis's max speed (the chip's ACC/DEC during
+    /// homing are the axis's acceleration and deceleration).
     pub fn start_homing(&mut self, axis: &mut Axis) -> Result<(), HomingError> {
         if !self.settings.end_switch {
             return Err(HomingError::SwitchDisabled);
