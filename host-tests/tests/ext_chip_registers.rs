@@ -243,3 +243,67 @@ fn i2c_0x72_reads_a_register_after_a_tick_and_0x73_writes_one() {
         "ABS_POS is read-only: illegal address"
     );
 }
+
+#[test]
+fn a_wh_register_written_asleep_reaches_the_chip_even_when_a_wake_follows_at_once() {
+    use bridge_logic::postep60::Request;
+    // The filed sequence: asleep, 20 ms, GATECFG1 = 0x111 accepted, and the
+    // wake before the next control tick. The write goes out before the
+    // wake's HardStop (a WH register is refused once the bridges are on).
+    // Also when a stop, a Set zero or a move follows the wake at once (each
+    // ends HiZ too).
+    let then = [
+        None,
+        Some(Request::Stop),
+        Some(Request::SetZero),
+        Some(Request::SetPosition(100)),
+    ];
+    for (reg, then) in [0x0118u16, 0x010F]
+        .into_iter()
+        .flat_map(|r| then.into_iter().map(move |t| (r, t)))
+    {
+        let mut b = line();
+        b.bridge.request(0, Request::RunSleep(0x0F)).unwrap();
+        b.run(20);
+        let errors = b.chip(0).command_errors();
+        let value = if reg == 0x0118 { 0x111 } else { 0x31 };
+        assert_eq!(b.bridge.ext_write(0, reg, &[value]), Ok(()));
+        b.bridge.request(0, Request::RunSleep(0xDA)).unwrap();
+        if let Some(req) = then {
+            b.bridge.request(0, req).unwrap();
+        }
+        b.run(20);
+        let r = Register::from_address(reg as u8).unwrap();
+        assert_eq!(
+            b.chip(0).register(r),
+            u32::from(value),
+            "{r:?}, then {then:?}: the chip holds what was acknowledged"
+        );
+        assert_eq!(
+            b.chip(0).command_errors(),
+            errors,
+            "{r:?}, then {then:?}: never refused"
+        );
+        assert!(!b.chip(0).is_hiz(), "awake again");
+    }
+}
+
+#[test]
+fn a_register_write_the_chip_refused_is_written_again_once_it_can_be() {
+    use bridge_logic::postep60::Request;
+    let mut b = line();
+    b.bridge.request(0, Request::RunSleep(0x0F)).unwrap();
+    b.run(20);
+    assert_eq!(b.bridge.ext_write(0, 0x0118, &[0x0AB]), Ok(()));
+    // Before the write goes out the chip leaves HiZ behind the bridge's
+    // back (a HardStop it was never sent, as noise on SDI could make one):
+    // the write reaches a chip with its bridges on and is refused.
+    b.chip_mut(0).exchange(0xB8);
+    assert!(!b.chip(0).is_hiz());
+    b.run(20);
+    // CMD_ERROR in the next STATUS puts it back on the list; asleep means
+    // bridges off, so the chip is put back in HiZ; then it is written.
+    assert!(b.chip(0).command_errors() >= 1, "the chip did refuse once");
+    assert!(b.chip(0).is_hiz(), "asleep: bridges off again");
+    assert_eq!(b.chip(0).register(Register::GateCfg1), 0x0AB);
+}

@@ -115,7 +115,9 @@ pub mod homing {
     /// switch, 2 searching, 3 releasing, 4 done, 5 failed).
     pub const COMMAND: u8 = 0x00;
     /// 0 none, 1 switch not found, 2 timeout, 3 switch disabled, 4 aborted,
-    /// 5 fault, 6 not ready (moving, asleep, faulted).
+    /// 5 fault, 6 not ready (moving, asleep, faulted), 7 switch stuck (a
+    /// clear or release phase travelled the max travel without the switch
+    /// letting go), 8 unbounded (neither max travel nor timeout set).
     pub const RESULT: u8 = 0x01;
     /// 1 while position 0 is the switch edge.
     pub const HOMED: u8 = 0x02;
@@ -124,9 +126,10 @@ pub mod homing {
     /// u32 logical steps/s.
     pub const SEARCH_SPEED: u8 = 0x04;
     pub const RELEASE_SPEED: u8 = 0x06;
-    /// u32 logical steps, 0 = no limit.
+    /// u32 logical steps per phase (search, clear, release), 0 = no limit.
     pub const MAX_TRAVEL: u8 = 0x08;
-    /// s, 0 = no limit.
+    /// s for the whole sequence, 0 = no limit (homing refuses to start with
+    /// both 0).
     pub const TIMEOUT_S: u8 = 0x0A;
     /// The PoStep60 end-switch settings of the axis (otherwise only USB
     /// 0x88 / 0xB1 set them): bit 0 enabled, bit 1 normally closed.

@@ -61,7 +61,7 @@
 //!   read-back position and switches the bridges off.
 
 use super::divisor::Divisor;
-use super::homing::{Homing, HomingError, HomingParams, HomingState, Step};
+use super::homing::{Homing, HomingError, HomingParams, HomingState, Seen, Step};
 use super::profile::{Limits, Mode, Profile};
 use super::units::{self, LIMIT_CAPS};
 pub use super::units::{logical_to_physical, physical_to_logical, MAX_LOGICAL_SHIFT};
@@ -191,6 +191,12 @@ pub struct ChipImage {
     owned: u32,
     /// Bit `address`: not written since the last reset or change.
     dirty: u32,
+    /// Bit `address`: written since the last GetStatus went out (the next
+    /// STATUS says whether the chip took it).
+    unconfirmed: u32,
+    /// Bit `address`: written before the GetStatus now in flight; its
+    /// CMD_ERROR puts them back on the list ([`ChipImage::refused`]).
+    checking: u32,
 }
 
 impl ChipImage {
@@ -199,6 +205,8 @@ impl ChipImage {
             values: [0; 27],
             owned: 0,
             dirty: 0,
+            unconfirmed: 0,
+            checking: 0,
         }
     }
 
@@ -227,6 +235,8 @@ impl ChipImage {
     /// The chip was reset: every owned register has to be written again.
     fn on_reset(&mut self) {
         self.dirty = self.owned;
+        self.unconfirmed = 0;
+        self.checking = 0;
     }
 
     /// Nothing left to write.
@@ -250,7 +260,27 @@ impl ChipImage {
     }
 
     fn written(&mut self, reg: Register) {
-        self.dirty &= !(1 << reg.address());
+        let bit = 1u32 << reg.address();
+        self.dirty &= !bit;
+        self.unconfirmed |= bit;
+    }
+
+    /// A GetStatus goes out: the writes before it are what its CMD_ERROR
+    /// would be about.
+    fn status_requested(&mut self) {
+        self.checking |= self.unconfirmed;
+        self.unconfirmed = 0;
+    }
+
+    /// That STATUS came back: with CMD_ERROR the chip refused a command
+    /// since the previous one — maybe one of these writes — so they are
+    /// written again (the same values: harmless if the refusal was another
+    /// command's). A register is written only once the chip has taken it.
+    fn status_seen(&mut self, cmd_error: bool) {
+        if cmd_error {
+            self.dirty |= self.checking & self.owned;
+        }
+        self.checking = 0;
     }
 
     /// Write `reg` again (if owned) at the next chance.
@@ -335,6 +365,8 @@ pub struct Axis {
     resets: u32,
     /// The homing sequence (running or its last outcome).
     homing: Option<Homing>,
+    /// Homing started: ACC/DEC get the axis's limits before its first phase.
+    homing_ramps: bool,
     /// Position 0 is the home switch's edge (until a chip reset, a chain
     /// error or a stall says otherwise).
     homed: bool,
@@ -558,6 +590,7 @@ impl Axis {
             chip_off_for_fault: false,
             resets: 0,
             homing: None,
+            homing_ramps: false,
             homed: false,
             absolute_read: false,
             ext_read: None,
@@ -654,17 +687,18 @@ impl Axis {
 
     // ------------------------------------------------------ motion commands
 
-    /// Move to `target` logical steps (ignored while asleep).
+    /// Move to `target` logical steps (ignored while asleep or homing: the
+    /// device layer refuses motion requests then).
     pub fn move_to(&mut self, target: i64) {
-        if self.asleep {
+        if self.asleep || self.is_homing() {
             return;
         }
         self.fault = None;
         self.profile.move_to(target);
     }
-    /// Run at a signed speed (logical steps/s; ignored while asleep).
+    /// Run at a signed speed (logical steps/s; ignored while asleep or homing).
     pub fn run_at(&mut self, steps_per_s: i32) {
-        if self.asleep {
+        if self.asleep || self.is_homing() {
             return;
         }
         self.fault = None;
@@ -747,7 +781,12 @@ impl Axis {
         let pressed = closed != params.nc;
         self.homed = false;
         self.fault = None;
+        // Nothing of the last move survives homing: the profile holds where
+        // the chip is, and when homing ends (however it ends) the axis rests
+        // where the chip stopped until a new motion command.
+        self.profile.set_position_fine(self.chip_fine());
         self.homing = Some(Homing::start(params, pressed, self.rb.chip_pos, self.tick));
+        self.homing_ramps = true;
         self.state = AxisState::Homing;
         Ok(())
     }
@@ -1003,10 +1042,13 @@ impl Axis {
     /// `emit` returns false when the batch is full; the axis then retries next tick.
     pub fn plan(&mut self, mut emit: impl FnMut(Command) -> bool) {
         let mut used = 0usize;
+        let mut leaves_hiz = false;
         let mut counted = |cmd: Command| {
             let ok = emit(cmd);
             if ok {
                 used += 1;
+                leaves_hiz |=
+                    cmd.is_motion() || matches!(cmd, Command::SoftStop | Command::HardStop);
             }
             ok
         };
@@ -1014,21 +1056,14 @@ impl Axis {
         if !self.is_configured() {
             return;
         }
-        // Spare slots carry configuration registers that changed: those
-        // writable at any time always; WS ones only while the chip rests and
-        // nothing starts it this tick; WH ones only in HiZ too. So the chip
-        // never has to refuse one.
-        use crate::powerstep::registers::Access;
-        let resting =
-            self.state == AxisState::Idle && self.profile.is_settled() && !self.rb.status.busy();
-        let hiz = resting && self.rb.status.hiz();
+        // Spare slots carry configuration registers that changed, each only
+        // when the chip takes it ([`Axis::chip_takes`]): nothing starts the
+        // chip this tick for a WS one, nothing ends HiZ for a WH one. So the
+        // chip never has to refuse one.
+        let still = self.profile.is_settled();
         while used < MAX_COMMANDS {
-            let Some((reg, value)) = self.image.next(|r| match r.access() {
-                Access::Always => true,
-                Access::WhenStopped => resting,
-                Access::WhenHiZ => hiz,
-                Access::ReadOnly => false,
-            }) else {
+            let Some((reg, value)) = self.image.next(|r| self.chip_takes(r, still, !leaves_hiz))
+            else {
                 break;
             };
             if !emit(Command::SetParam(reg, value)) {
@@ -1047,6 +1082,57 @@ impl Axis {
                 }
             }
         }
+    }
+
+    /// A STATUS read after the last command shows the bridges off (HiZ)
+    /// and the motor stopped.
+    fn hiz_confirmed(&self) -> bool {
+        let s = self.rb.status;
+        s.hiz() && !s.busy() && self.rb.status_at > self.rb.sent_at
+    }
+
+    /// Whether the chip takes a write of `reg` now, as far as its last
+    /// STATUS shows: WR registers always; WH ones only in HiZ
+    /// ([`Axis::hiz_confirmed`]) if the chip `stays_hiz` (nothing before the
+    /// write in this tick ends HiZ); WS ones then too, or while the axis is
+    /// idle (the chip was confirmed stopped), STATUS says not busy and the
+    /// chip `stays_still` through the write.
+    fn chip_takes(&self, reg: Register, stays_still: bool, stays_hiz: bool) -> bool {
+        use crate::powerstep::registers::Access;
+        let hiz = stays_hiz && self.hiz_confirmed();
+        let stopped =
+            hiz || (self.state == AxisState::Idle && stays_still && !self.rb.status.busy());
+        match reg.access() {
+            Access::Always => true,
+            Access::WhenStopped => stopped,
+            Access::WhenHiZ => hiz,
+            Access::ReadOnly => false,
+        }
+    }
+
+    /// Write, in the slots this tick has left, the registers the chip takes
+    /// while it stays stopped (and in HiZ, if it is): before a move starts
+    /// from rest or before the wake's HardStop, so that what was accepted
+    /// for the chip reaches it before anything it could be refused after.
+    /// True if any is still waiting for a slot.
+    fn write_before_leaving_rest(&mut self, emit: &mut impl FnMut(Command) -> bool) -> bool {
+        while let Some((reg, value)) = self.image.next(|r| self.chip_takes(r, true, true)) {
+            if !emit(Command::SetParam(reg, value)) {
+                return true;
+            }
+            self.image.written(reg);
+        }
+        false
+    }
+
+    /// A WH register is waiting that the chip, still in HiZ as far as the
+    /// bridge knows, could take before a wake ends HiZ: the wake waits for
+    /// it (or for a STATUS after the last command that shows no HiZ).
+    fn hiz_write_waiting(&self) -> bool {
+        use crate::powerstep::registers::Access;
+        let s = self.rb.status;
+        let hiz_disproved = self.rb.status_at > self.rb.sent_at && !s.hiz();
+        !hiz_disproved && self.image.next(|r| r.access() == Access::WhenHiZ).is_some()
     }
 
     fn plan_commands(&mut self, mut emit: impl FnMut(Command) -> bool) {
@@ -1069,12 +1155,28 @@ impl Axis {
             Read::Status => Command::GetStatus,
         };
         self.rb.read = if emit(read_cmd) { Some(read) } else { None };
+        if self.rb.read == Some(Read::Status) {
+            self.image.status_requested();
+        }
+        // In HiZ, what was accepted for the chip (a WH register written while
+        // asleep) goes out before anything that ends HiZ — a wake, a stop, a
+        // move. Not in a setup (it writes everything) or homing (its phase
+        // commands need the slots; homing never starts in HiZ).
+        let flush = !matches!(self.state, AxisState::Setup(_) | AxisState::Homing);
+        if flush && self.hiz_confirmed() && self.write_before_leaving_rest(&mut emit) {
+            return;
+        }
         self.rb.expected_at_read = self.profile_physical();
 
         match self.state {
             AxisState::Setup(k) => self.plan_setup(k, &mut emit),
             AxisState::Idle if !self.profile.is_settled() => {
-                // A new motion from rest: make the chip's ramps match, then stream.
+                // A new motion from rest: first what the chip takes only at
+                // rest (e.g. MIN_SPEED put back after homing), then the
+                // chip's ramps, then stream.
+                if self.write_before_leaving_rest(&mut emit) {
+                    return;
+                }
                 let l = units::clamp_to_chip(self.limits.requested, self.cfg.logical_shift);
                 let acc = units::ramp_reg(l.acc, self.cfg.logical_shift);
                 let dec = units::ramp_reg(l.dec, self.cfg.logical_shift);
@@ -1107,11 +1209,27 @@ impl Axis {
                 }
             }
             AxisState::Idle => {
-                // Energize only once the changed currents are out.
+                // Energize (or wake) only once the changed currents are out,
+                // and a WH register accepted while asleep before the wake's
+                // HardStop ends HiZ (the spare slots below write them).
                 use crate::powerstep::registers::Access;
-                if self.image.next(|r| r.access() == Access::Always).is_none() {
+                let fresh = self.rb.status_at > self.rb.sent_at;
+                if self.asleep && fresh && !self.rb.status.hiz() {
+                    // Asleep means bridges off: a chip found out of HiZ (a
+                    // command it was never sent) is put back.
+                    if emit(Command::HardHiZ) {
+                        self.rb.sent_at = self.tick;
+                    }
+                    return;
+                }
+                let currents = self.image.next(|r| r.access() == Access::Always).is_some();
+                if !currents && !self.hiz_write_waiting() {
                     if let Some(cmd) = self.idle_command.take() {
-                        emit(cmd);
+                        if emit(cmd) {
+                            self.rb.sent_at = self.tick;
+                        } else {
+                            self.idle_command = Some(cmd);
+                        }
                     }
                 }
             }
@@ -1151,6 +1269,8 @@ impl Axis {
                 break;
             }
             match cmd {
+                // A WH write later in this setup needs a STATUS after it.
+                Command::HardHiZ => self.rb.sent_at = self.tick,
                 Command::SetParam(Register::MaxSpeed, v) => self.limits.max_speed = v,
                 Command::SetParam(Register::Acc, v) => self.limits.acc = v,
                 Command::SetParam(Register::Dec, v) => self.limits.dec = v,
@@ -1239,10 +1359,30 @@ impl Axis {
             self.state = AxisState::Idle;
             return;
         };
+        if self.homing_ramps {
+            // The chip runs the search and release ramps itself: ACC and DEC
+            // are the axis's limits (no streaming headroom). WS registers;
+            // the chip rests (homing starts only from rest).
+            let l = units::clamp_to_chip(self.limits.requested, self.cfg.logical_shift);
+            let acc = units::chip_ramp_reg(l.acc, self.cfg.logical_shift);
+            let dec = units::chip_ramp_reg(l.dec, self.cfg.logical_shift);
+            if emit(Command::SetParam(Register::Acc, acc)) {
+                self.limits.acc = acc;
+                if emit(Command::SetParam(Register::Dec, dec)) {
+                    self.limits.dec = dec;
+                    self.homing_ramps = false;
+                }
+            }
+            return;
+        }
         let s = self.rb.status;
-        let pressed = s.switch_closed() != h.params.nc;
-        let fresh = self.rb.status_at > self.rb.sent_at && self.rb.pos_at > self.rb.status_at;
-        let step = h.step(s.busy(), pressed, fresh, self.rb.chip_pos, self.tick);
+        let seen = Seen {
+            busy: s.busy(),
+            pressed: s.switch_closed() != h.params.nc,
+            fresh: self.rb.status_at > self.rb.sent_at && self.rb.pos_at > self.rb.status_at,
+            pos: self.rb.pos_at_status,
+        };
+        let step = h.step(seen, self.rb.chip_pos, self.tick);
         self.homing = Some(h);
         match step {
             Step::Wait => {}
@@ -1410,6 +1550,7 @@ impl Axis {
     fn take_status(&mut self, s: Status) {
         self.rb.status = s;
         self.rb.status_at = self.tick;
+        self.image.status_seen(s.command_error());
         if s.uvlo() {
             // Reset or undervoltage. In a setup, only a read issued after
             // the setup began reports a new one (the power-up flag, or the
@@ -1538,6 +1679,40 @@ mod tests {
         }
         assert!(a.set_register(Register::OcdTh, 12));
         assert_eq!(a.chip_image().get(Register::OcdTh), Some(12));
+    }
+
+    #[test]
+    fn a_write_is_done_only_once_the_next_status_shows_no_command_error() {
+        let mut a = axis();
+        a.set_register(Register::OcdTh, 12);
+        let (r, _) = a.image.next(|_| true).expect("dirty");
+        assert_eq!(r, Register::StepMode);
+        while let Some((r, _)) = a.image.next(|_| true) {
+            a.image.written(r);
+        }
+        assert!(a.image.is_clean());
+        // The GetStatus after the writes comes back with CMD_ERROR: the
+        // chip refused a command since the last one, maybe one of them.
+        a.image.status_requested();
+        a.image.status_seen(true);
+        assert_eq!(
+            a.image.next(|r| r == Register::OcdTh),
+            Some((Register::OcdTh, 12)),
+            "written again"
+        );
+        // A clean STATUS confirms them.
+        while let Some((r, _)) = a.image.next(|_| true) {
+            a.image.written(r);
+        }
+        a.image.status_requested();
+        a.image.status_seen(false);
+        assert!(a.image.is_clean());
+        // Writes after the GetStatus went out are not what it is about.
+        a.set_register(Register::OcdTh, 13);
+        a.image.status_requested();
+        a.image.written(Register::OcdTh);
+        a.image.status_seen(true);
+        assert!(a.image.is_clean(), "the next STATUS decides about that one");
     }
 
     #[test]

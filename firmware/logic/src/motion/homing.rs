@@ -11,8 +11,7 @@
 //!    from it first (it then stands just off the switch).
 //! 2. *Search*: GoUntil(copy to MARK, toward the switch, search speed). The
 //!    chip stops itself on the switch's closing edge (SoftStop, CONFIG.SW_MODE
-//!    = 1). Travel beyond the maximum travel, or the timeout, stops it and
-//!    fails.
+//!    = 1).
 //! 3. *Release*: ReleaseSW(reset ABS_POS, away) at the release speed — the
 //!    chip's ReleaseSW speed is MIN_SPEED, so the axis writes MIN_SPEED for
 //!    this phase (stopped: WS) and 0 again afterwards. On the opening edge
@@ -24,8 +23,28 @@
 //! only imprecision); the release is GoUntil(reset ABS_POS, away, release
 //! speed), which zeroes on the closing edge; *clear* is the same GoUntil.
 //!
+//! # Bounds: no phase runs for ever
+//!
+//! * **Max travel bounds every phase**, each measured from where the phase
+//!   began: a search that travels farther fails as *not found*; a clear or
+//!   release that travels farther without the switch letting go fails as
+//!   *switch stuck* (a stuck contact, a broken normally closed wire, or a
+//!   search direction that points away from the cam, so that clearing
+//!   drives deeper into it).
+//! * **The timeout bounds the whole sequence.**
+//! * A sequence with neither bound (max travel 0 and timeout 0) is refused
+//!   at the start ([`HomingError::Unbounded`]); the factory settings have a
+//!   60 s timeout.
+//! * The travel is checked on positions read before a STATUS that shows the
+//!   chip still busy and healthy: a chip reset (UVLO, ABS_POS back to 0)
+//!   ends homing as a *fault*, never as a travel error.
+//! * Once a phase has seen its switch edge (the chip then decelerates or has
+//!   stopped), its travel is no longer checked: the stop after a found
+//!   switch never fails the search.
+//!
 //! Every phase starts only once STATUS says the chip is not busy; a Stop,
-//! a fault or a chip reset ends homing (the axis then holds, not homed).
+//! a fault or a chip reset ends homing. However it ends, the axis then rests
+//! where the chip stopped until a new motion command (`super::axis`).
 
 use crate::powerstep::commands::{Command, Direction, SwitchAction};
 
@@ -79,6 +98,11 @@ pub enum HomingError {
     Fault,
     /// The axis was moving, asleep or not configured.
     NotReady,
+    /// A clear or release phase travelled the maximum travel without the
+    /// switch letting go.
+    SwitchStuck,
+    /// Neither a maximum travel nor a timeout is set: refused at the start.
+    Unbounded,
 }
 
 impl HomingError {
@@ -91,6 +115,8 @@ impl HomingError {
             HomingError::Aborted => 4,
             HomingError::Fault => 5,
             HomingError::NotReady => 6,
+            HomingError::SwitchStuck => 7,
+            HomingError::Unbounded => 8,
         }
     }
 }
@@ -136,8 +162,8 @@ pub(super) struct Homing {
     pub(super) state: HomingState,
     /// A phase command was sent and the chip not yet seen idle after it.
     sent: bool,
-    /// Chip position (physical microsteps) when the search began.
-    start_pos: i64,
+    /// Chip position (physical microsteps) when the current phase began.
+    phase_start: i64,
     started_tick: u64,
 }
 
@@ -146,6 +172,19 @@ fn away(d: Direction) -> Direction {
         Direction::Forward => Direction::Reverse,
         Direction::Reverse => Direction::Forward,
     }
+}
+
+/// What the chip reported, as [`Homing::step`] needs it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) struct Seen {
+    /// The last STATUS says BUSY.
+    pub busy: bool,
+    /// The switch is pressed (NO/NC applied).
+    pub pressed: bool,
+    /// A STATUS and a position read came after the last command.
+    pub fresh: bool,
+    /// The position read before that STATUS (physical microsteps).
+    pub pos: i64,
 }
 
 impl Homing {
@@ -160,7 +199,7 @@ impl Homing {
                 HomingState::Searching
             },
             sent: false,
-            start_pos: pos,
+            phase_start: pos,
             started_tick: tick,
         }
     }
@@ -231,78 +270,76 @@ impl Homing {
         }
     }
 
-    /// One tick: the chip's last STATUS (`busy`, `pressed` with NO/NC
-    /// applied, `fresh`: read after the last command), its position, `tick`.
-    pub(super) fn step(
-        &mut self,
-        busy: bool,
-        pressed: bool,
-        fresh: bool,
-        pos: i64,
-        tick: u64,
-    ) -> Step {
+    /// The phase has seen the switch edge it waits for.
+    fn edge_seen(&self, pressed: bool) -> bool {
+        match self.state {
+            HomingState::Searching => pressed,
+            _ => !pressed,
+        }
+    }
+
+    /// One tick: what the chip reported (`seen`), and its position now
+    /// (`pos_now`, where a phase that starts now begins), at `tick`.
+    pub(super) fn step(&mut self, seen: Seen, pos_now: i64, tick: u64) -> Step {
         let p = self.params;
         if p.timeout_ticks > 0 && tick.saturating_sub(self.started_tick) > p.timeout_ticks {
             return Step::Fail(HomingError::Timeout);
         }
-        match self.state {
-            HomingState::Clearing | HomingState::Searching | HomingState::Releasing => {}
+        let cmds = match self.state {
+            HomingState::Clearing => self.clear_cmds(),
+            HomingState::Searching => self.search_cmds(),
+            HomingState::Releasing => self.release_cmds(),
             _ => return Step::Wait,
-        }
+        };
         if !self.sent {
             self.sent = true;
-            if self.state == HomingState::Searching {
-                self.start_pos = pos;
-            }
-            return Step::Send(match self.state {
-                HomingState::Clearing => self.clear_cmds(),
-                HomingState::Searching => self.search_cmds(),
-                _ => self.release_cmds(),
-            });
+            self.phase_start = pos_now;
+            return Step::Send(cmds);
         }
-        if !fresh {
+        if !seen.fresh {
             return Step::Wait;
         }
-        if self.state == HomingState::Searching {
-            let travel = pos.abs_diff(self.start_pos);
-            if p.max_travel > 0 && travel > p.max_travel {
-                return Step::Fail(HomingError::NotFound);
-            }
-            if p.nc {
-                // The NC search is a Run (busy only while it accelerates):
-                // the axis stops it when the switch opens.
-                if !pressed {
-                    return Step::Wait;
-                }
-                self.state = HomingState::Releasing;
-                self.sent = false;
-                return Step::Send([Some(Command::HardStop), None]);
-            }
+        let edge = self.edge_seen(seen.pressed);
+        if self.state == HomingState::Searching && p.nc && edge {
+            // The NC search is a Run (busy only while it accelerates): the
+            // axis stops it when the switch opens.
+            self.state = HomingState::Releasing;
+            self.sent = false;
+            return Step::Send([Some(Command::HardStop), None]);
         }
-        if busy {
+        // Still on the way (a NC search's Run reads not busy at constant
+        // speed): bounded by the maximum travel.
+        let running = seen.busy || (self.state == HomingState::Searching && p.nc);
+        if running {
+            let travel = seen.pos.abs_diff(self.phase_start);
+            if !edge && p.max_travel > 0 && travel > p.max_travel {
+                return Step::Fail(match self.state {
+                    HomingState::Searching => HomingError::NotFound,
+                    _ => HomingError::SwitchStuck,
+                });
+            }
             return Step::Wait;
         }
         // The chip finished the phase.
         match self.state {
-            HomingState::Clearing => {
+            HomingState::Clearing if edge => {
                 self.state = HomingState::Searching;
                 self.sent = false;
                 Step::Wait
             }
-            HomingState::Searching => {
-                if pressed {
-                    self.state = HomingState::Releasing;
-                    self.sent = false;
-                    Step::Wait
-                } else {
-                    // Stopped without the switch (e.g. by a limit).
-                    Step::Fail(HomingError::NotFound)
-                }
+            HomingState::Searching if edge => {
+                self.state = HomingState::Releasing;
+                self.sent = false;
+                Step::Wait
             }
-            _ => {
+            // Stopped without the switch (e.g. by a limit).
+            HomingState::Searching => Step::Fail(HomingError::NotFound),
+            HomingState::Releasing if edge => {
                 self.state = HomingState::Done;
                 Step::Finished
             }
+            // Stopped on the switch.
+            _ => Step::Fail(HomingError::SwitchStuck),
         }
     }
 }

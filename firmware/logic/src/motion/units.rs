@@ -186,6 +186,14 @@ pub const fn ramp_reg(a: u32, logical_shift: u8) -> u32 {
     }
 }
 
+/// The chip's ACC/DEC register for ramps the chip runs itself (homing's
+/// GoUntil and ReleaseSW, and the SoftStop after a found switch): the
+/// axis's acceleration exactly (rounded to the nearest register step, 1 at
+/// least, 0xFFE at most), without the streaming headroom of [`ramp_reg`].
+pub const fn chip_ramp_reg(a: u32, logical_shift: u8) -> u32 {
+    crate::powerstep::units::acc_from_steps_per_s2(full_steps_q16_from_logical(a, logical_shift))
+}
+
 /// Largest `x` in `1..=u32::MAX` with `f(x) ≤ limit` (`f` non-decreasing), or 1.
 const fn largest_within(limit: u64, logical_shift: u8, ramp: bool) -> u32 {
     const fn f(x: u32, logical_shift: u8, ramp: bool) -> u64 {
@@ -298,6 +306,16 @@ const fn min(a: u32, b: u32) -> u32 {
 mod tests {
     use super::*;
     use crate::powerstep::units::{acc_to_steps_per_s2, max_speed_to_steps_per_s};
+
+    #[test]
+    fn chip_ramp_reg_is_the_acceleration_itself() {
+        // 4000 steps/s² at 1/16 = 250 full steps/s²; ACC = a · 2⁴⁰ / (4·10⁶)²
+        // (datasheet, ACC): 250 · 0.0687 = 17.18 → 17; 500 → 34.36 → 34.
+        assert_eq!(chip_ramp_reg(4000, 4), 17);
+        assert_eq!(chip_ramp_reg(8000, 4), 34);
+        assert_eq!(chip_ramp_reg(1, 8), 1, "never 0");
+        assert_eq!(chip_ramp_reg(u32::MAX, 0), ACC_MAX_FINITE, "never infinite");
+    }
 
     #[test]
     fn logical_to_physical_scales_by_powers_of_two() {

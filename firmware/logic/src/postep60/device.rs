@@ -501,9 +501,13 @@ impl Device {
         if self.blocked().is_err() {
             return Err(HomingError::NotReady);
         }
-        let cfg = axis.config();
         let h = self.settings.homing;
-        let full = |v: u32| full_steps_q16_from_logical(v, cfg.logical_shift);
+        if h.max_travel == 0 && h.timeout_s == 0 {
+            return Err(HomingError::Unbounded);
+        }
+        let cfg = axis.config();
+        let vmax = self.settings.max_speed.max(1);
+        let full = |v: u32| full_steps_q16_from_logical(v.min(vmax), cfg.logical_shift);
         // ReleaseSW moves at max(MIN_SPEED, 5 full steps/s).
         let release = full(h.release_speed).max(5 << 16);
         let params = HomingParams {

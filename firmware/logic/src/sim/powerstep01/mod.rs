@@ -59,6 +59,11 @@
 //! | StepClock refused unless stopped | `step_clock_while_moving_is_refused` |
 //! | WS registers (ABS_POS, EL_POS, ACC, DEC, MIN_SPEED, ALARM_EN) refused unless stopped, value unchanged | `ws_register_written_while_moving_is_refused_after_the_last_argument` |
 //! | WH registers (STEP_MODE, CONFIG, GATECFG, BEMF) refused unless in HiZ | `wh_register_written_while_not_in_hiz_is_refused` |
+//! | … also right after a wake (HardStop) earlier in the same batch | `a_wh_register_write_after_a_wake_in_the_same_batch_is_refused` |
+//! | SW input: SW_F follows the level; SW_EVN latches the closing edge (until GetStatus) | `switch_closing_only_latches_the_event_when_sw_mode_is_1` |
+//! | CONFIG.SW_MODE = 0: a closing edge hard-stops any motion | `switch_closing_hard_stops_the_motor_when_sw_mode_is_0`, `go_until_hard_stops_when_sw_mode_is_0` |
+//! | GoUntil: ACT (ABS_POS reset or copy to MARK) on the closing edge, then SoftStop with DEC | `go_until_resets_abs_pos_on_switch_closing_then_soft_stops`, `go_until_copies_abs_pos_to_mark_with_act_1` |
+//! | ReleaseSW: max(MIN_SPEED, 5 step/s) until the switch opens, then ACT and HardStop | `release_sw_runs_slowly_until_the_switch_opens_then_hard_stops`, `release_sw_uses_min_speed_when_it_is_faster` |
 //! | Read-only and non-existent registers refused at the command byte | `set_param_to_a_read_only_register_is_refused_at_the_command_byte`, `set_param_to_a_non_existent_register_is_refused_at_the_command_byte` |
 //! | Unknown command bytes refused, no arguments consumed | `unknown_byte_sets_cmd_error_and_consumes_no_arguments` |
 //! | ResetDevice refused outside HiZ | `reset_device_outside_hiz_is_refused` |

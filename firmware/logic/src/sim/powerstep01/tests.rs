@@ -724,6 +724,29 @@ fn stop_commands_in_hiz_enable_the_bridges_without_moving() {
     assert_eq!(d.abs_pos(), 0);
 }
 
+#[test]
+fn a_wh_register_write_after_a_wake_in_the_same_batch_is_refused() {
+    // In one control tick's batch a chip executes its commands in order:
+    // a HardStop that ends HiZ, then a WH write, is the write to a chip
+    // whose bridges are on.
+    let mut d = ready();
+    assert!(d.is_hiz());
+    let mut chain = crate::sim::SimChain::new(1);
+    *chain.device_mut(0).expect("chip") = d.clone();
+    for c in [
+        Command::HardStop,
+        Command::SetParam(Register::GateCfg1, 0x111),
+    ] {
+        for b in c.encode().as_slice() {
+            let mut rx = [0u8];
+            chain.transfer(&[*b], &mut rx);
+        }
+    }
+    d = chain.device(0).expect("chip").clone();
+    assert!(error(&d), "CMD_ERROR");
+    assert_eq!(d.register(Register::GateCfg1), 0, "the value is not taken");
+}
+
 fn sw_user_mode(d: &mut Powerstep01) {
     cmd(
         d,
