@@ -35,7 +35,9 @@
 //!   steps from the current target.
 //! * **Auto run** (mode 6): at power-up the axis runs at max speed; Set
 //!   requested speed runs at that speed; invert flips the direction; Stop
-//!   stops until the next requested speed.
+//!   stops until the next requested speed. A wired run/stop switch has the
+//!   last word: while it is off nothing runs (a requested speed or invert
+//!   is stored for when it turns on), turning it off soft-stops.
 
 use super::board::Board;
 use super::current::Current;
@@ -567,7 +569,13 @@ impl Device {
         }
     }
 
+    /// Auto run at `speed` — unless a run/stop switch is wired and off: the
+    /// switch has the last word (a requested speed or an invert is stored
+    /// and applies when the switch turns on).
     fn run_auto(&mut self, axis: &mut Axis, speed: u32) {
+        if self.inputs.run == Some(false) {
+            return;
+        }
         let speed = i32::try_from(speed).unwrap_or(i32::MAX);
         let v = if self.settings.invert { -speed } else { speed };
         axis.run_at(v);
