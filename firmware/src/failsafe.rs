@@ -17,9 +17,10 @@
 //!   ends QEMU with exit status 1.
 //! * **HardFault** on the board (`platform/board.rs`): STBY low, then spin. The
 //!   independent watchdog (started in `init`, fed by the control tick) resets
-//!   the MCU a few seconds later; until then, and through the reset (the pin
-//!   floats from reset until `init` configures it), the board's pull-down on
-//!   STBY keeps the chips in reset.
+//!   the MCU within its window (≤ 47.1 ms; seconds only in `init` or during a
+//!   settings save); until then, and through the reset (the pin floats from
+//!   reset until `init` configures it), the board's pull-down on STBY keeps
+//!   the chips in reset.
 //!
 //! `udf` raises a HardFault because UsageFault stays disabled (neither
 //! cortex-m-rt nor RTIC enables it), so the fault escalates; interrupts

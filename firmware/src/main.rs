@@ -6,16 +6,16 @@
 //!
 //! | task | runs on | priority | owns | shares |
 //! |---|---|---|---|---|
-//! | `init` | reset | – | reset handoff, RCC, SysTick, IWDG, GPIO; starts everything below | – |
+//! | `init` | reset | – | reset handoff, RCC, SysTick, IWDG (long window, short as its last step), GPIO; starts everything below | – |
 //! | `chain_window_end` | DMA2_STREAM0 | 5 | – | `chain` (SPI1, DMA2 streams 0/3, TIM7, CS) |
 //! | `chain_gap_end` | TIM7 | 5 | – | `chain` |
 //! | `modbus_uart` | USART2 | 4 | – | `rs485` (USART2, DE), `modbus` |
-//! | `control_tick` | TIM2, 1 kHz | 3 | `tick` (TIM2), `watchdog` (IWDG), LED, STBY | `bridge` (its chain bus: SPI1 + CS, blocking), `chain` |
+//! | `control_tick` | TIM2, 1 kHz | 3 | `tick` (TIM2), LED, STBY | `bridge` (its chain bus: SPI1 + CS, blocking), `chain`, `watchdog` (IWDG) |
 //! | `modbus_server` | async | 2 | – | `bridge`, `rs485`, `modbus`, `i2c` |
 //! | `ioext_run` | async | 2 | – | `ioext` (SPI2, TIM1, DMA1/2, PB11/13–15), `bridge` |
 //! | `ioext_spi_end`, `ioext_bit_end` | DMA1_STREAM3, DMA2_STREAM2 | 2 | – | `ioext`, `bridge` |
 //! | `i2c_event`, `i2c_error` | I2C1_EV, I2C1_ER | 2 | – | `bridge`, `i2c` (I2C1), `i2c_proto` |
-//! | `housekeeping` | async, 10 Hz | 1 | `analog` (ADC1), `store` (FLASH) | `bridge`, `rs485` |
+//! | `housekeeping` | async, 10 Hz | 1 | `analog` (ADC1), `store` (FLASH) | `bridge`, `rs485`, `watchdog` |
 //! | `usb_hid` | OTG_FS, and pended by every control tick | 1 | `usb` (OTG FS) | `bridge` |
 //!
 //! * `chain_window_end` / `chain_gap_end` run the control tick's chain
@@ -33,7 +33,12 @@
 //!   interrupts with DE high. Above everything but the chain's interrupts:
 //!   stamps stay accurate and a response never pauses between characters
 //!   (> t1.5 would break it).
-//! * `control_tick`: `Bridge::tick_pipelined` — one chain batch for every
+//! * `control_tick`: first the watchdog, fed in the window the bridge asks
+//!   for (`Bridge::watchdog_window`: short, 16.9–47.1 ms over the LSI's
+//!   spread, whenever an axis may move; long only while a save is handed
+//!   out), so the window is in effect before the tick plans anything (a
+//!   change waits up to 5 LSI cycles, 0.3 ms: at the first tick after a
+//!   save only). Then `Bridge::tick_pipelined` — one chain batch for every
 //!   axis, by DMA: the batch started by the previous tick is collected
 //!   (`ChainDma::poll`, its rows copied out) and ended (its replies
 //!   absorbed), then this tick is planned and its batch started; the bytes
@@ -43,7 +48,7 @@
 //!   tick comes skips the tick (an overrun in the diagnostics); one past
 //!   its deadline (2 × nominal + 100 µs) is stopped and ends as a chain
 //!   error. Then STBY low for good once the bridge declares the chain dead, LED,
-//!   watchdog feed, the 10 Hz spawn of `housekeeping`, a pend of `usb_hid`,
+//!   the 10 Hz spawn of `housekeeping`, a pend of `usb_hid`,
 //!   its own duration (DWT; the monotonic under QEMU) into the bridge's
 //!   diagnostics, and the I/O extension's next action
 //!   (`Bridge::take_io_action`) into a channel to `ioext_run` — nothing of
@@ -63,6 +68,9 @@
 //!   address base goes on to the I2C slave. `i2c_*` move PoStep60 I2C bytes.
 //! * `housekeeping`: ADC samples, a pending settings save, a requested
 //!   system reset — the last two only while no Modbus response goes out.
+//!   A save switches the watchdog to the long window (4.4–12.2 s) before
+//!   the flash erase stalls the CPU, and does not erase if that fails; the
+//!   control tick after `Bridge::saved` switches back to short.
 //!   The reset's target (application, boot mode, ROM DFU) goes into the
 //!   `.uninit` handoff word first; `init` reads it before anything else:
 //!   boot mode starts the bridge in it, ROM DFU jumps to ST's bootloader
@@ -75,7 +83,8 @@
 //!   every control tick also pends it (≤ 1 ms late on the 10 ms cadence).
 //!
 //! A panic or HardFault drives STBY low first (`firmware::failsafe`); the
-//! watchdog resets the MCU if `control_tick` stops. Under QEMU (feature
+//! watchdog resets the MCU if `control_tick` stops, within 47.1 ms while
+//! an axis may move (README, "Wiring"). Under QEMU (feature
 //! `qemu`) the same tasks run on `platform/qemu.rs`'s stand-ins, where the
 //! I2C tasks never fire and USB is never started (`usb_hid` returns at
 //! once). On any target but `thumbv7em-none-eabihf` this file is an empty
@@ -159,6 +168,11 @@ mod app {
         /// The I/O extension's port (`ioext_run` and the two DMA tasks, all
         /// at priority 2).
         ioext: IoExtDriver,
+        /// The independent watchdog: fed by every control tick in the
+        /// bridge's window, switched to the long one by `housekeeping`
+        /// before a save's erase (ceiling 3: that switch holds the tick off
+        /// for its ≤ 0.3 ms).
+        watchdog: Watchdog,
     }
 
     #[local]
@@ -175,8 +189,6 @@ mod app {
         /// Chain STBY/RESET, released (high) by `init`: driven low and given
         /// up (`None`) once the bridge declares the chain dead.
         stby: Option<board::ChainStby>,
-        /// The independent watchdog, fed by every control tick.
-        watchdog: Watchdog,
         /// ADC1: motor supply, die temperature, VREFINT.
         analog: Analog,
         /// Settings store: flash sectors 10 and 11 (a host file under QEMU).
@@ -230,8 +242,10 @@ mod app {
         Mono::start(core.SYST, systick_hz - systick_hz % clock::TICK_HZ);
         platform::enable_stopwatch(&mut core.DCB, &mut core.DWT);
 
-        // From here on a stalled control tick resets the MCU.
-        let watchdog = Watchdog::start(dp.IWDG, &dp.DBGMCU);
+        // From here on a stalled control tick resets the MCU: in the long
+        // window until the end of init (chain detection and set-up, the
+        // settings load, the USB start), then in the bridge's.
+        let mut watchdog = Watchdog::start(dp.IWDG, &dp.DBGMCU);
 
         let pins = board::configure(
             dp.GPIOA.split(&mut rcc),
@@ -337,6 +351,14 @@ mod app {
         let (io_actions, io_next) = rtic_sync::make_channel!(Action, IO_ACTIONS);
         let (io_ended_spi, io_ended) = rtic_sync::make_channel!((), 2);
         let io_ended_bit = io_ended_spi.clone();
+
+        // Last: the bridge's window (short), with the first control tick at
+        // most one period away.
+        let window = bridge.watchdog_window();
+        match watchdog.feed_in(window) {
+            Ok(()) => info!("watchdog: {} window", window),
+            Err(e) => error!("watchdog: {} window not in effect ({})", window, e),
+        }
         (
             Shared {
                 bridge,
@@ -346,6 +368,7 @@ mod app {
                 i2c,
                 i2c_proto: I2cSlave::new(),
                 ioext,
+                watchdog,
             },
             Local {
                 tick,
@@ -353,7 +376,6 @@ mod app {
                 rate,
                 led: pins.led,
                 stby: Some(stby),
-                watchdog,
                 analog,
                 store,
                 bytes_in,
@@ -407,24 +429,36 @@ mod app {
         }
     }
 
-    /// The control loop: one bridge tick (one chain batch for every axis,
-    /// pipelined: the previous batch's replies in, this tick's batch out by
-    /// DMA), then STBY, LED, the slow jobs at 10 Hz and a USB poll; the
-    /// tick's duration goes to the bridge's diagnostics.
+    /// The control loop: the watchdog fed in the bridge's window, one
+    /// bridge tick (one chain batch for every axis, pipelined: the previous
+    /// batch's replies in, this tick's batch out by DMA), then STBY, LED,
+    /// the slow jobs at 10 Hz and a USB poll; the tick's duration goes to
+    /// the bridge's diagnostics.
     #[task(
         binds = TIM2,
         priority = 3,
-        shared = [bridge, chain],
+        shared = [bridge, chain, watchdog],
         local = [
-            tick, clock, rate, led, stby, watchdog, io_actions, io_pending,
+            tick, clock, rate, led, stby, io_actions, io_pending,
             rx: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS],
             chain_failing: bool = false,
+            watchdog_failing: bool = false,
         ]
     )]
     fn control_tick(mut cx: control_tick::Context) {
         let stopwatch = Stopwatch::start();
         cx.local.tick.acknowledge();
-        cx.local.watchdog.feed();
+        // The window before anything is planned: short whenever an axis may
+        // move. A change (after a save) waits up to 5 LSI cycles; one that
+        // fails is tried again next tick.
+        let window = cx.shared.bridge.lock(|b| b.watchdog_window());
+        let fed = cx.shared.watchdog.lock(|w| w.feed_in(window));
+        match (fed, *cx.local.watchdog_failing) {
+            (Err(e), false) => error!("watchdog: {} window not in effect ({})", window, e),
+            (Ok(()), true) => info!("watchdog: {} window in effect", window),
+            _ => {}
+        }
+        *cx.local.watchdog_failing = fed.is_err();
         // The bridge's clock is milliseconds: above 1 kHz several ticks
         // share one.
         let (now, housekeeping_due) = cx.local.clock.tick();
@@ -670,25 +704,40 @@ mod app {
     /// and a requested system reset. Save and reset wait until no Modbus
     /// response is going out (both would cut it short); the check and the
     /// take are one lock, so a response started in between cannot slip by.
-    #[task(priority = 1, shared = [bridge, rs485], local = [analog, store, image: [u8; IMAGE_LEN] = [0; IMAGE_LEN]])]
+    /// A handed-out save first puts the watchdog in the window the bridge
+    /// now asks for (long): the erase starts only once it is in effect.
+    #[task(priority = 1, shared = [bridge, rs485, watchdog], local = [analog, store, image: [u8; IMAGE_LEN] = [0; IMAGE_LEN]])]
     async fn housekeeping(mut cx: housekeeping::Context) {
         let sample = cx.local.analog.sample();
         let image = cx.local.image;
-        let (save, reset) = (&mut cx.shared.bridge, &mut cx.shared.rs485).lock(|b, line| {
-            b.on_analog(sample);
-            if line.is_sending() {
-                (false, None)
-            } else {
-                (b.take_save(image), b.take_reset())
-            }
-        });
+        let (save, reset, window) =
+            (&mut cx.shared.bridge, &mut cx.shared.rs485).lock(|b, line| {
+                b.on_analog(sample);
+                let (save, reset) = if line.is_sending() {
+                    (false, None)
+                } else {
+                    (b.take_save(image), b.take_reset())
+                };
+                (save, reset, b.watchdog_window())
+            });
         if save {
-            let ok = cx.local.store.save(image).is_ok();
+            let ok = match cx.shared.watchdog.lock(|w| w.feed_in(window)) {
+                Ok(()) => cx.local.store.save(image).is_ok(),
+                Err(e) => {
+                    error!(
+                        "watchdog: {} window not in effect ({}), no erase",
+                        window, e
+                    );
+                    false
+                }
+            };
             if ok {
                 info!("settings: saved");
             } else {
                 warn!("settings: save failed");
             }
+            // From here on the bridge asks for the short window again; the
+            // next control tick puts it in effect before it plans.
             cx.shared.bridge.lock(|b| b.saved(ok));
         }
         if let Some(target) = reset {

@@ -141,6 +141,10 @@ pub const STORE_SIZE: usize = SECTOR_NUMBERS.len() * SECTOR_SIZE;
 /// datasheet): a settings save that erases stalls the CPU, control tick and
 /// watchdog feed included, this long.
 pub const ERASE_MAX_MS: u32 = 4_000;
+/// Worst-case programming of one byte at x8 parallelism (STM32F405
+/// datasheet, t_prog: 16 µs typical, 100 µs maximum); the CPU stalls this
+/// long per byte.
+pub const PROGRAM_BYTE_MAX_US: u32 = 100;
 /// BSY polls before a wait gives up. While the flash is busy the CPU stalls
 /// on every fetch from it, so each poll takes at least one flash access;
 /// 2³⁰ polls outlast a 4 s erase by far at any clock.

@@ -11,7 +11,8 @@
 //!   FLASH_SR / FLASH_CR (blocking, as flash programming is on this chip).
 //! * [`rs485`] — USART2 and the RS-485 transceiver's DE line
 //!   (interrupt-driven).
-//! * [`iwdg`] — the independent watchdog: key sequence, prescaler, reload.
+//! * [`iwdg`] — the independent watchdog: key sequence, prescaler, reload,
+//!   the two windows and the change between them while it runs.
 //!
 //! What a driver decides — which register is read or written, in which
 //! order, with which value — lives here; the firmware's part is the PAC

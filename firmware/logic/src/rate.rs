@@ -16,8 +16,17 @@ pub const TICK_HZ: u32 = match option_env!("STEPBRIDGE_TICK_HZ") {
 /// The tick period, µs.
 pub const TICK_US: u32 = 1_000_000 / TICK_HZ;
 
+/// The slowest tick the firmware runs at: the floor of the build setting
+/// and of [`fit`]'s derating.
+pub const HZ_MIN: u32 = 500;
+/// The fastest build setting.
+pub const HZ_MAX: u32 = 10_000;
+/// The longest tick period, µs (at [`HZ_MIN`]): what the MCU's watchdog
+/// window must comfortably outlast (`drivers_core::iwdg::SHORT`).
+pub const PERIOD_MAX_US: u32 = 1_000_000 / HZ_MIN;
+
 const _: () = assert!(
-    TICK_HZ >= 500 && TICK_HZ <= 10_000 && 1_000_000 % TICK_HZ == 0,
+    TICK_HZ >= HZ_MIN && TICK_HZ <= HZ_MAX && 1_000_000 % TICK_HZ == 0,
     "STEPBRIDGE_TICK_HZ must divide 1 000 000 and lie in 500..=10000"
 );
 
@@ -94,7 +103,7 @@ pub const fn tick_need_ns(chips: usize) -> u64 {
 
 /// The fastest rate at most `hz` whose period holds a streaming tick of
 /// `chips` within [`BUDGET_PERCENT`], halving from `hz` (a period that
-/// stays a whole number of µs), down to 500 Hz. A tick that does not fit
+/// stays a whole number of µs), down to [`HZ_MIN`]. A tick that does not fit
 /// is skipped as an overrun, and every skipped tick is a tick of time the
 /// profile loses: a box must not run its motors slow, so it runs slower
 /// ticks instead and says so.
@@ -105,7 +114,7 @@ pub const fn fit(hz: u32, chips: usize) -> Rate {
         let us = 1_000_000 / h;
         let fits = need * 100 <= (us as u64) * 1000 * BUDGET_PERCENT;
         let next = h / 2;
-        if fits || next < 500 || 1_000_000 % next != 0 {
+        if fits || next < HZ_MIN || 1_000_000 % next != 0 {
             return Rate {
                 hz: h,
                 us,

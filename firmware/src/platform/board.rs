@@ -5,7 +5,9 @@
 // cortex-m-rt's HardFault handler is an `unsafe fn` by contract.
 #![allow(unsafe_code)]
 
+use bridge_logic::bridge::WatchdogWindow;
 use defmt_rtt as _;
+use drivers_core::iwdg::{self, WindowError};
 use stm32f4xx_hal::pac;
 use stm32f4xx_hal::rcc::{Config, Rcc, RccExt};
 use stm32f4xx_hal::time::Hertz;
@@ -18,7 +20,7 @@ use crate::board::{
     IoExtMosi, IoExtSck, IoExtSpi, IoExtSpiDma, IoExtTimer, IoExtTimerDma,
 };
 use crate::drivers::chain_spi::{self, ChainBuffers, ChainPort};
-use crate::drivers::flash::{StoreFlash, ERASE_MAX_MS};
+use crate::drivers::flash::StoreFlash;
 use crate::drivers::ioext_spi::{IoExtBuffers, IoExtPort};
 
 pub use crate::drivers::analog::Analog;
@@ -76,41 +78,47 @@ pub fn reset_cause(rcc: &pac::RCC) -> ResetCause {
     cause
 }
 
-/// The independent watchdog, fed by every control tick
-/// (`drivers_core::iwdg` on `pac::IWDG`).
+/// The independent watchdog (`drivers_core::iwdg` on `pac::IWDG`) in the
+/// window the bridge asks for (`Bridge::watchdog_window`): short (16.9 to
+/// 47.1 ms over the LSI's spread) whenever an axis may move, long (4.4 to
+/// 12.2 s) only around a settings save's flash erase.
 pub struct Watchdog(drivers_core::iwdg::Watchdog<crate::drivers::iwdg::IwdgPeripheral>);
 
 impl Watchdog {
-    /// Timeout, nominal (a 32 kHz LSI). The LSI of the STM32F405 runs
-    /// anywhere from 17 to 47 kHz (datasheet), so the real timeout is 0.68
-    /// to 1.88 times this: 6.5 s nominal is at least 4.4 s, longer than the
-    /// worst-case sector erase (a shorter one would reset the MCU in the
-    /// middle of a settings save), and at most 12.2 s.
-    pub const TIMEOUT_MS: u32 = 6_500;
-
-    /// Start the IWDG (it cannot be stopped again), frozen while a debugger
-    /// halts the core.
+    /// Start the IWDG in the long window (it cannot be stopped again),
+    /// frozen while a debugger halts the core. Long because `init` has the
+    /// chips' reset pulse and wake-up, chain detection and set-up, the
+    /// settings load and the USB start ahead of it; `init` switches to the
+    /// bridge's window (short) last, at most a tick period before the first
+    /// control tick.
     pub fn start(iwdg: pac::IWDG, dbgmcu: &pac::DBGMCU) -> Watchdog {
         dbgmcu.apb1_fz().modify(|_, w| w.dbg_iwdg_stop().set_bit());
-        let watchdog = drivers_core::iwdg::Watchdog::start(
-            crate::drivers::iwdg::IwdgPeripheral(iwdg),
-            Self::TIMEOUT_MS,
+        let watchdog =
+            iwdg::Watchdog::start(crate::drivers::iwdg::IwdgPeripheral(iwdg), iwdg::LONG);
+        defmt::info!(
+            "watchdog: long window {=u32} ms nominal ({=u64}..{=u64} ms), short {=u32} ms ({=u64}..{=u64} us) while anything may move",
+            iwdg::LONG_MS,
+            iwdg::LONG_MIN_US / 1000,
+            iwdg::LONG_MAX_US.div_ceil(1000),
+            iwdg::SHORT_MS,
+            iwdg::SHORT_MIN_US,
+            iwdg::SHORT_MAX_US
         );
-        defmt::info!("watchdog: {=u32} ms nominal", Self::TIMEOUT_MS);
         Watchdog(watchdog)
     }
 
+    /// Reload the counter in the window in effect.
     pub fn feed(&mut self) {
         self.0.feed();
     }
-}
 
-/// The fastest LSI (47 kHz) shortens the nominal timeout by 32/47; it must
-/// still outlast a worst-case erase plus two control ticks (≥ 1 ms each).
-const _: () = assert!(
-    Watchdog::TIMEOUT_MS as u64 * 32 / 47 > ERASE_MAX_MS as u64 + 2,
-    "the watchdog must outlast a sector erase at the fastest LSI"
-);
+    /// Feed in `window`: a plain feed while it is in effect, else a window
+    /// change (up to 5 LSI cycles, 0.3 ms at 17 kHz), in effect once this
+    /// returns `Ok`.
+    pub fn feed_in(&mut self, window: WatchdogWindow) -> Result<(), WindowError> {
+        self.0.feed_in(iwdg::Window::of(window))
+    }
+}
 
 /// Why the control timer did not start.
 pub type TimerError = stm32f4xx_hal::timer::Error;
@@ -200,9 +208,11 @@ pub fn measure_us(sysclk_hz: u32, f: impl FnOnce()) -> u64 {
     u64::from(cycles) * 1_000_000 / u64::from(sysclk_hz.max(1))
 }
 
-/// HardFault: chips off, then wait for the watchdog's reset. Until then,
-/// and through the reset (the pin floats from reset until `init`
-/// configures it), the board's pull-down on STBY keeps the chips in reset.
+/// HardFault: chips off, then wait for the watchdog's reset (within the
+/// window in effect: ≤ 47.1 ms; seconds only in `init` and during a save).
+/// Until then, and through the reset (the pin floats from reset until
+/// `init` configures it), the board's pull-down on STBY keeps the chips in
+/// reset.
 #[cortex_m_rt::exception]
 unsafe fn HardFault(_frame: &cortex_m_rt::ExceptionFrame) -> ! {
     crate::failsafe::chips_off();

@@ -12,7 +12,7 @@
 //! | `freeze_clocks` | 8 MHz HSE, PLL to 168 MHz and 48 MHz PLL48CLK | 16 MHz HSI, no PLL | RCC ready bits read 0: HSE/PLL start-up hangs |
 //! | `systick_hz` | SYSCLK | 168 MHz | QEMU's SysTick counts at 168 MHz whatever the clocks say |
 //! | `reset_flags`, `reset_cause` | RCC_CSR flags (then cleared) | 0, [`ResetCause::Unknown`] | RCC not modelled |
-//! | `Watchdog` | IWDG, 6.5 s nominal | does nothing | IWDG not modelled |
+//! | `Watchdog` | IWDG (`drivers_core::iwdg`): started in the long window (6.5 s nominal), then fed in the bridge's (`feed_in`: short, 25 ms, whenever an axis may move; long only around a save's erase) | does nothing; every window "in effect" | IWDG not modelled |
 //! | `TickTimer` | TIM2 update at the control rate (HAL) | TIM2 programmed for QEMU's timer model | QEMU's TIM2 ignores the prescaler |
 //! | `ChainDriver` (the bridge's blocking bus), `ChainDma` (the control tick's batches), `chain_driver` | SPI1 + CS polled; SPI1 by DMA2 streams 0/3, CS gaps by TIM7 (`drivers::chain_spi`) | 4 simulated powerSTEP01s that live on the monotonic's time; `ChainDma` clocks a batch through them at start and reports it over at once | no chips attached, no DMA, no TIM7 |
 //! | `Analog` | ADC1 (`drivers::analog`) | constant 24 V / 25 °C | ADC init reads calibration next to the unique ID, which HardFaults |

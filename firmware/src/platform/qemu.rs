@@ -39,7 +39,7 @@
 // cortex-m-rt's HardFault handler is an `unsafe fn` by contract.
 #![allow(unsafe_code)]
 
-use bridge_logic::bridge::BatchState;
+use bridge_logic::bridge::{BatchState, WatchdogWindow};
 use bridge_logic::ioext::{Action, WireBits};
 use bridge_logic::postep60::analog::AnalogSample;
 use bridge_logic::powerstep::chain::{clock_windows, Frames, Plan};
@@ -47,6 +47,7 @@ use bridge_logic::powerstep::ChainBus;
 use bridge_logic::sim::{ConsoleCommand, HomeCam, ShiftChain, SimChain};
 use bridge_logic::transport::i2c::{I2cSlave, I2cTarget};
 use defmt_semihosting as _;
+use drivers_core::iwdg::WindowError;
 use stm32f4xx_hal::pac;
 use stm32f4xx_hal::rcc::{Config, Enable, Rcc, RccExt, Reset};
 
@@ -100,20 +101,21 @@ pub fn reset_cause(_rcc: &pac::RCC) -> ResetCause {
     ResetCause::Unknown
 }
 
-/// Watchdog stand-in: QEMU does not model the IWDG, so nothing is started
-/// and feeding does nothing.
+/// Watchdog stand-in: QEMU does not model the IWDG, so nothing is started,
+/// feeding does nothing and every window is "in effect" at once.
 pub struct Watchdog;
 
 impl Watchdog {
-    /// The board's nominal timeout (not applied under QEMU).
-    pub const TIMEOUT_MS: u32 = 6_500;
-
     pub fn start(_iwdg: pac::IWDG, _dbgmcu: &pac::DBGMCU) -> Watchdog {
         defmt::info!("watchdog: not modelled by QEMU, not started");
         Watchdog
     }
 
     pub fn feed(&mut self) {}
+
+    pub fn feed_in(&mut self, _window: WatchdogWindow) -> Result<(), WindowError> {
+        Ok(())
+    }
 }
 
 /// Why the control timer did not start.

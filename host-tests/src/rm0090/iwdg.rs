@@ -19,6 +19,10 @@
 //!   SR are one LSI cycle (a poll is a few APB1 cycles at 42 MHz).
 //! * A PR/RLR write while its update flag is set is ignored and recorded as
 //!   a violation.
+//! * A feed does not restart the prescaler: the first count after it comes
+//!   after 1 to 4 · 2^PR LSI cycles.
+//! * [`IwdgModel::stop_lsi`] stands for a dead LSI: nothing counts, no
+//!   update completes.
 
 use drivers_core::iwdg::bits::*;
 use drivers_core::iwdg::IwdgReg;
@@ -46,8 +50,12 @@ pub struct IwdgModel {
     cycles: u64,
     /// When the watchdog reset the MCU (LSI cycles since start).
     reset_at: Option<u64>,
+    /// The LSI stopped ([`IwdgModel::stop_lsi`]).
+    lsi_stopped: bool,
     /// PR/RLR writes ignored because they were protected.
     pub protected_writes: u32,
+    /// SR reads (the driver's polls).
+    pub sr_reads: u64,
     violations: Vec<String>,
 }
 
@@ -72,7 +80,9 @@ impl IwdgModel {
             polls: 0,
             cycles: 0,
             reset_at: None,
+            lsi_stopped: false,
             protected_writes: 0,
+            sr_reads: 0,
             violations: Vec::new(),
         }
     }
@@ -99,6 +109,11 @@ impl IwdgModel {
         self.access
     }
 
+    /// LSI cycles since start.
+    pub fn cycles(&self) -> u64 {
+        self.cycles
+    }
+
     /// LSI cycles since start at which the watchdog reset the MCU.
     pub fn reset_at(&self) -> Option<u64> {
         self.reset_at
@@ -106,6 +121,11 @@ impl IwdgModel {
 
     pub fn violations(&self) -> &[String] {
         &self.violations
+    }
+
+    /// From now on the LSI does not run (a failure, see the module docs).
+    pub fn stop_lsi(&mut self) {
+        self.lsi_stopped = true;
     }
 
     /// `n` LSI cycles pass.
@@ -116,7 +136,7 @@ impl IwdgModel {
     }
 
     fn lsi_cycle(&mut self) {
-        if !self.running || self.reset_at.is_some() {
+        if !self.running || self.lsi_stopped || self.reset_at.is_some() {
             return;
         }
         self.cycles += 1;
@@ -169,6 +189,7 @@ impl Regs<IwdgReg> for IwdgModel {
             IwdgReg::Pr => self.pr,
             IwdgReg::Rlr => self.rlr,
             IwdgReg::Sr => {
+                self.sr_reads += 1;
                 self.polls += 1;
                 if self.polls >= POLLS_PER_LSI_CYCLE {
                     self.polls = 0;

@@ -19,6 +19,12 @@
 //!   rest, and from then until [`Bridge::saved`] every request is refused
 //!   (Busy), because erasing flash stalls the CPU — and with it the control
 //!   loop — for up to 4 s, and no motor may start moving just before that.
+//! * **The MCU's watchdog window** ([`Bridge::watchdog_window`]): short
+//!   (tens of ms) whenever any axis may move, so a stalled control loop
+//!   leaves a chip running on its last Run for no longer than that; long
+//!   (seconds) only from [`Bridge::take_save`] to [`Bridge::saved`], while
+//!   every axis is at rest and every request is refused, so the flash erase
+//!   that stalls the CPU does not reset the MCU.
 //! * **System reset** stops every axis at once and is handed out by
 //!   [`Bridge::take_reset`] only when they have stopped.
 //! * **Time** is passed in: `tick(now_ms)` once per control period.
@@ -59,6 +65,23 @@ pub enum ResetTarget {
     BootMode,
     /// ST's ROM DFU bootloader (USB extension 0xDF), for `dfu-util`.
     RomDfu,
+}
+
+/// The window the MCU's independent watchdog (IWDG) must have now
+/// ([`Bridge::watchdog_window`]) — not the PoStep60 communication watchdog.
+/// The firmware applies it (`drivers_core::iwdg::Window::of` gives the
+/// timeouts); which one is needed is decided here.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum WatchdogWindow {
+    /// Tens of milliseconds: an axis may move, and a control loop that
+    /// stops feeding must reset the MCU (and with it STBY: bridges off)
+    /// before a chip runs far on its last Run.
+    Short,
+    /// Seconds: a settings save was handed out and its flash erase is
+    /// about to stall the CPU, feeds included, for up to 4 s; every axis is
+    /// at rest and every request is refused until [`Bridge::saved`].
+    Long,
 }
 
 /// The buses a request can come on (the communication watchdog's index).
@@ -537,6 +560,23 @@ impl<B: ChainBus> Bridge<B> {
         self.saving = true;
         self.settings().to_image(out);
         true
+    }
+
+    /// The MCU watchdog's window the firmware must have in effect now
+    /// ([`WatchdogWindow`]): [`WatchdogWindow::Long`] exactly from a
+    /// [`Bridge::take_save`] that handed out an image (every axis at rest,
+    /// every request refused from then on) until [`Bridge::saved`];
+    /// [`WatchdogWindow::Short`] at every other moment, so whenever an axis
+    /// may move. The firmware applies it before each control tick plans
+    /// (nothing moves but through a tick's batch), and between `take_save`
+    /// and the erase (which must not start before the long window is in
+    /// effect).
+    pub fn watchdog_window(&self) -> WatchdogWindow {
+        if self.saving {
+            WatchdogWindow::Long
+        } else {
+            WatchdogWindow::Short
+        }
     }
 
     /// Outcome of a save handed out by [`Bridge::take_save`].
