@@ -154,6 +154,9 @@ struct Counts {
     outcomes: [u64; 9],
     refused_homings: u64,
     moves_after_done: u64,
+    /// Of those, the ones no interruption cancelled (checked at the end of
+    /// their sequence), and how many of them landed exactly.
+    checked_after_done: u64,
     arrived_after_done: u64,
     /// Largest |position 0 − the switch edge| over the completed homings, µsteps.
     zero_off_edge: i64,
@@ -639,7 +642,7 @@ impl World {
                 if first {
                     self.counts.moves_after_done += 1;
                 }
-                self.move_after_done[k] = first;
+                self.move_after_done[k] |= first;
             }
             Request::Stop | Request::SetZero | Request::RunSleep(0x0F) => {
                 if req == Request::RunSleep(0x0F) {
@@ -824,6 +827,10 @@ impl World {
                 continue;
             };
             let a = self.ax[k];
+            let after_done = std::mem::take(&mut self.move_after_done[k]);
+            if after_done {
+                self.counts.checked_after_done += 1;
+            }
             let phys = logical_to_physical(target, a.mode, BOARD.step);
             let reported = self.position(k);
             let want = physical_to_logical(phys, a.mode, BOARD.step);
@@ -835,7 +842,7 @@ impl World {
                 self.violation(s);
             } else {
                 self.counts.arrived += 1;
-                if std::mem::take(&mut self.move_after_done[k]) {
+                if after_done {
                     self.counts.arrived_after_done += 1;
                 }
             }
@@ -1088,7 +1095,7 @@ fn random_run(n: usize, sequences: usize, seed: u64, tick_us: u32) -> World {
         "seed {seed:#x}: {n} chips at {} Hz, {sequences} sequences, watchdog {watchdog:?}, {} ms: violations {}; \
          moves {} (arrived {}), homings {} (refused at the start {}), outcomes [done, not found, \
          timeout, disabled, aborted, fault, not ready, stuck, unbounded] {:?}, moves after done {} \
-         (arrived {}), position 0 at most {} µsteps off the edge, at most {} µsteps into the cam; \
+         ({} uninterrupted, {} of them arrived), position 0 at most {} µsteps off the edge, at most {} µsteps into the cam; \
          BINx presses {}, WH writes asleep {}, chip resets {}, watchdog trips {}, end-switch stops {}, \
          interruptions [stop, soft, zero, sleep, abort, reset] {:?}",
         1_000_000 / tick_us,
@@ -1100,6 +1107,7 @@ fn random_run(n: usize, sequences: usize, seed: u64, tick_us: u32) -> World {
         c.refused_homings,
         c.outcomes,
         c.moves_after_done,
+        c.checked_after_done,
         c.arrived_after_done,
         c.zero_off_edge,
         c.past_switch,
