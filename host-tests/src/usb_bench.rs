@@ -201,7 +201,8 @@ pub const MOTION: [u8; 10] = [0x02, 0x80, 0x83, 0x82, 0x90, 0xA1, 0xB1, 0xB2, 0x
 
 /// Feed arbitrary OUT reports (and control ticks) straight to the bridge's
 /// USB entry points, 2 axes on simulated chips, and check: nothing panics;
-/// no chip moves unless a well-formed report (64 bytes, `[63]` = 0) carried
+/// no chip moves unless a well-formed report (64 bytes, or 63 with byte 0
+/// stripped, and `OutDATA[63]` = 0) carried
 /// a motion command; an ill-formed report gets no response. Returns the
 /// number of reports fed. The fuzz target `usb_reports` and the proptest in
 /// `usb_robustness.rs` both run this.
@@ -222,8 +223,15 @@ pub fn check_usb_stream(data: &[u8]) -> usize {
         if tag & 1 == 0 {
             let len = usize::from(it.next().unwrap_or(0) % 80);
             let r: Vec<u8> = it.by_ref().take(len).collect();
-            let well_formed = r.len() == REPORT_LEN && r.last() == Some(&0);
-            if well_formed && r.get(1).is_some_and(|c| MOTION.contains(c)) {
+            // 64 bytes, or 63 (OutDATA[1..63], byte 0 stripped by the host),
+            // with OutDATA[63] = 0.
+            let command = match r.len() {
+                REPORT_LEN => r.get(1),
+                n if n == REPORT_LEN - 1 => r.first(),
+                _ => None,
+            };
+            let well_formed = command.is_some() && r.last() == Some(&0);
+            if well_formed && command.is_some_and(|c| MOTION.contains(c)) {
                 motion = true;
             }
             let before = bridge.diag.usb_reports;

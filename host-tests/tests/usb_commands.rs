@@ -170,7 +170,16 @@ fn device_info_0x01_reports_versions_mode_voltage_uid_temperature_and_status() {
             let r = transact(&mut cls, &mut dev, &out(0x01));
             assert_eq!(r.len(), 64);
             assert_eq!(r[0], 0x02, "IN_REPORT_ID");
-            assert_eq!(be16(&r, 3), 0x0001, "application firmware 0.1");
+            assert_eq!(
+                be16(&r, 1),
+                0x0109,
+                "bootloader firmware: the PoStep60's 1.9"
+            );
+            assert_eq!(
+                be16(&r, 3),
+                0x0109,
+                "application firmware: the PoStep60's 1.9"
+            );
             assert_eq!(r[5], 0xAB, "DEVICE_MODE: application");
             assert_eq!(r[6] & 1, 1, "bootloader override pin reads high");
             // 24 V at 0.072 V/LSB: the bench's ADC sample gives 333.
@@ -183,6 +192,25 @@ fn device_info_0x01_reports_versions_mode_voltage_uid_temperature_and_status() {
             let t = f64::from(be16(&r, 44)) * 0.125;
             assert!((24.0..=26.0).contains(&t), "{t} °C");
             assert_eq!(r[46], 0x02, "ACTIVE");
+        })
+        .expect("with_usb");
+}
+
+#[test]
+fn a_63_byte_report_is_taken_as_out_data_1_to_63() {
+    // What Linux hidraw sends for a 64-byte write whose byte 0 is 0x00 (the
+    // manual's OutDATA[0] is "-"): usbhid strips the zero report id.
+    UsbCtx::default()
+        .with_usb(|mut cls, mut dev| {
+            let r = transact(&mut cls, &mut dev, &out(0x01)[1..]);
+            assert_eq!(r.len(), 64, "answered");
+            assert_eq!(r[0], 0x02);
+            assert_eq!(be16(&r, 3), 0x0109);
+            assert_eq!(r[5], 0xAB, "DEVICE_MODE: application");
+            let t = trajectory(0, 4000, 2000, 20_000, 20_000);
+            write(&mut cls, &mut dev, &t[1..]);
+            cls.settle(30_000);
+            assert_eq!(cls.chip(0).abs_pos(), phys(4000), "a 63-byte 0xB1 moves");
         })
         .expect("with_usb");
 }

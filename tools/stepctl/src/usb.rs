@@ -153,6 +153,10 @@ impl Hid for HidapiDevice {
     }
 }
 
+/// Queued input reports [`UsbBus::transact`] reads away before it writes
+/// (hidraw keeps 64 per reader).
+const DRAIN_MAX: usize = 128;
+
 /// The box over a [`Hid`].
 pub struct UsbBus<H: Hid> {
     pub hid: H,
@@ -215,6 +219,15 @@ impl<H: Hid> UsbBus<H> {
     /// not a 0xA0 stream report); a status other than done is an error.
     pub fn transact(&mut self, out: &Report, what: &str) -> Result<Report> {
         let name = self.hid.name();
+        // Reports still queued (a running 0xA0 stream fills Linux hidraw's
+        // 64-report queue in 0.64 s, and a full queue drops new ones — the
+        // reply to this command among them): read them away first.
+        for _ in 0..DRAIN_MAX {
+            match self.hid.read(Duration::ZERO) {
+                Ok(Some(_)) => continue,
+                _ => break,
+            }
+        }
         if self.trace {
             eprintln!("stepctl: {name} -> {}", crate::bus::hex(out));
         }
@@ -595,6 +608,43 @@ mod tests {
     // HID" (0x01: supply [8..9] and temperature [44..45] big-endian, status
     // [46]; 0x81: packet id 0xBA, response 0x81, DRV8711 image [40..55] LSB
     // first, mode [62]; 0x88: 0xCC / 0x87, LE32 limits at [24], [28], [32]).
+
+    /// A hidraw reader: 64 reports queued at most, newer ones dropped.
+    struct Hidraw {
+        queue: std::collections::VecDeque<Report>,
+        reply: Report,
+    }
+
+    impl Hid for Hidraw {
+        fn write(&mut self, _report: &Report) -> std::result::Result<(), String> {
+            if self.queue.len() < 64 {
+                self.queue.push_back(self.reply);
+            }
+            Ok(())
+        }
+        fn read(&mut self, _t: Duration) -> std::result::Result<Option<Report>, String> {
+            Ok(self.queue.pop_front())
+        }
+        fn name(&self) -> String {
+            "hidraw".into()
+        }
+    }
+
+    #[test]
+    fn reports_queued_by_the_stream_are_read_away_before_a_command() {
+        // The 0xA0 stream filled the reader's queue (Linux hidraw keeps 64):
+        // without reading it away first the reply would be dropped.
+        let stream = reply(0, 0, 0, cmd::STREAM, &[]);
+        let info = reply(0, 0, 0, 0, &[(46, &[2])]);
+        let mut b = UsbBus::new(
+            Hidraw {
+                queue: std::iter::repeat_n(stream, 64).collect(),
+                reply: info,
+            },
+            Duration::from_millis(10),
+        );
+        assert_eq!(b.read(1, 0x13, 1), Ok(vec![2]));
+    }
 
     #[test]
     fn every_report_starts_with_id_2_and_selects_the_axis_at_byte_62() {

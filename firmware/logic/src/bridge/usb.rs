@@ -96,9 +96,10 @@ fn ext_status(r: Result<(), ExtError>) -> u8 {
     }
 }
 
-/// The firmware version as one u16 (major·256 + minor), MSB first on the wire.
+/// The PoStep60-facing firmware version as one u16 (major·256 + minor),
+/// MSB first on the wire (`POSTEP60_FW_VERSION`).
 const fn app_version() -> u16 {
-    let (major, minor) = crate::postep60::device::FW_VERSION;
+    let (major, minor) = crate::postep60::device::POSTEP60_FW_VERSION;
     (major as u16) << 8 | minor as u16
 }
 

@@ -245,8 +245,17 @@ pub enum Effect {
     },
 }
 
-/// Firmware version reported by 0x0A (the crate's major.minor).
+/// This firmware's own version (major, minor): the extension space's
+/// diagnostics (0x0343) report it.
 pub const FW_VERSION: (u8, u8) = (0, 1);
+/// The firmware version the PoStep60-facing fields report (I2C/Modbus 0x0A,
+/// USB 0x01's bootloader and application versions): 1.9 = 0x0109, the
+/// newest PoStep60 firmware the manual (18/5/2021) names — its errata list
+/// fixes up to 0x0109 — so the PoStep60 application neither pushes its own
+/// firmware at the box (which is not a PoStep60 and could not take it) nor
+/// works around bugs the box does not have. The box's own version is
+/// [`FW_VERSION`].
+pub const POSTEP60_FW_VERSION: (u8, u8) = (1, 9);
 /// PoStep60 driver id (0x0A byte 0).
 pub const DRIVER_ID: u8 = 0x41;
 
@@ -858,8 +867,8 @@ impl Device {
                     DRIVER_ID,
                     board.hw_version.0,
                     board.hw_version.1,
-                    FW_VERSION.0,
-                    FW_VERSION.1,
+                    POSTEP60_FW_VERSION.0,
+                    POSTEP60_FW_VERSION.1,
                 ],
                 5,
             ),

@@ -36,7 +36,8 @@ pub struct PoStepHid<'a, B: UsbBus> {
     ep_out: EndpointOut<'a, B>,
     idle: u8,
     /// An output report that came by SET_REPORT, not yet taken.
-    control_report: Option<[u8; REPORT_LEN]>,
+    /// A report that came by SET_REPORT on EP0, and its length.
+    control_report: Option<([u8; REPORT_LEN], usize)>,
 }
 
 impl<B: UsbBus> core::fmt::Debug for PoStepHid<'_, B> {
@@ -76,9 +77,9 @@ impl<'a, B: UsbBus> PoStepHid<'a, B> {
     /// length (a transfer of another length than 64 is passed on as it is;
     /// the codec refuses it).
     pub fn read_report(&mut self, buf: &mut [u8; REPORT_LEN]) -> Option<usize> {
-        if let Some(r) = self.control_report.take() {
+        if let Some((r, n)) = self.control_report.take() {
             *buf = r;
-            return Some(REPORT_LEN);
+            return Some(n);
         }
         self.ep_out.read(buf).ok()
     }
@@ -155,11 +156,14 @@ impl<B: UsbBus> UsbClass<B> for PoStepHid<'_, B> {
             }
             SET_PROTOCOL => xfer.accept(),
             SET_REPORT if (req.value >> 8) as u8 == REPORT_TYPE_OUTPUT => {
+                // 64 bytes, or 63 (byte 0 stripped: the codec takes both).
                 let mut r = [0u8; REPORT_LEN];
                 let data = xfer.data();
-                if data.len() == REPORT_LEN {
-                    r.copy_from_slice(data);
-                    self.control_report = Some(r);
+                if (REPORT_LEN - 1..=REPORT_LEN).contains(&data.len()) {
+                    for (dst, src) in r.iter_mut().zip(data.iter()) {
+                        *dst = *src;
+                    }
+                    self.control_report = Some((r, data.len()));
                     xfer.accept()
                 } else {
                     xfer.reject()

@@ -159,7 +159,7 @@ pub enum UsbRequest {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum UsbError {
-    /// Not a 64-byte report.
+    /// Not a 64-byte report (nor a 63-byte one: byte 0 stripped).
     Length(usize),
     /// `OutDATA[63]` is not 0 ("Must be always 0x00!").
     LastByte(u8),
@@ -183,10 +183,24 @@ fn le32(r: &[u8], i: usize) -> u32 {
 }
 
 /// Decode an OUT report: the request and the axis it addresses.
+///
+/// A 63-byte report is `OutDATA[1..63]` without byte 0: a host whose HID
+/// stack treats byte 0 as a report id and strips it when it is 0 (Linux
+/// usbhid for a hidraw write of a buffer starting 0x00) sends that for the
+/// manual's `OutDATA[0]` = "-" (unspecified). It is taken as the 64-byte
+/// report with byte 0 = 0.
 pub fn decode(r: &[u8]) -> Result<(UsbRequest, u8), UsbError> {
-    if r.len() != REPORT_LEN {
-        return Err(UsbError::Length(r.len()));
-    }
+    let mut padded = [0u8; REPORT_LEN];
+    let r = match r.len() {
+        REPORT_LEN => r,
+        n if n == REPORT_LEN - 1 => {
+            for (dst, src) in padded.iter_mut().skip(1).zip(r.iter()) {
+                *dst = *src;
+            }
+            &padded[..]
+        }
+        n => return Err(UsbError::Length(n)),
+    };
     match b(r, 63) {
         0 => {}
         other => return Err(UsbError::LastByte(other)),
@@ -327,6 +341,20 @@ impl InReport {
 
 #[cfg(test)]
 mod tests {
+
+    #[test]
+    fn a_63_byte_report_is_out_data_1_to_63_with_byte_0_stripped() {
+        // Linux hidraw: a write of [0x00, 0x01, 0, …] (64 bytes) reaches the
+        // device as its last 63 bytes.
+        let mut full = [0u8; REPORT_LEN];
+        full[1] = 0x01; // device info
+        full[AXIS_BYTE] = 1;
+        let stripped = &full[1..];
+        assert_eq!(stripped.len(), 63);
+        assert_eq!(decode(stripped), decode(&full));
+        assert_eq!(decode(stripped), Ok((UsbRequest::DeviceInfo, 1)));
+    }
+
     use super::*;
 
     fn out(cmd: u8) -> [u8; REPORT_LEN] {
@@ -338,6 +366,7 @@ mod tests {
     #[test]
     fn a_report_must_be_64_bytes_with_a_zero_last_byte() {
         assert_eq!(decode(&[0, 1]), Err(UsbError::Length(2)));
+        assert_eq!(decode(&[0; 62]), Err(UsbError::Length(62)));
         assert_eq!(decode(&[0; 65]), Err(UsbError::Length(65)));
         let mut r = out(0x01);
         r[63] = 1;
