@@ -440,15 +440,30 @@ fn undervoltage_sets_the_uvlo_fault() {
 }
 
 #[test]
-fn write_settings_0x3f_is_refused_while_an_axis_moves() {
+fn write_settings_0x3f_while_an_axis_moves_is_written_once_every_axis_rests() {
+    // The filed case: temperature limit 44 °C (0x34 0x2C), a move, 0x3F 50 ms
+    // into it. Accepted, pending while the axis moves, written at rest with
+    // the settings it was accepted with.
     let mut b = bench();
     let mut img = [0u8; IMAGE_LEN];
+    b.write(A0, &[0x34, 0x2C]);
     b.write(A0, &[0x50, 0x10, 0x27, 0, 0]);
-    b.run(5);
+    b.run(50);
     b.write(A0, &[0x3F]);
+    assert_eq!(b.bridge.diag.refused, 0, "accepted");
+    assert!(!b.bridge.take_save(&mut img), "not while the axis moves");
+    let mut pending = [0u16];
+    b.bridge.ext_read(0, 0x0346, &mut pending).unwrap();
+    assert_eq!(pending, [3], "visible as pending");
+    // A change after the acknowledged save is not part of it.
+    b.write(A0, &[0x34, 0x30]);
     b.settle(30_000);
-    assert!(!b.bridge.take_save(&mut img), "refused, not deferred");
-    assert_eq!(b.bridge.diag.refused, 1);
+    assert!(b.bridge.take_save(&mut img), "written at rest");
+    b.bridge.saved(true);
+    let s = Settings::from_image(&img).unwrap();
+    assert_eq!(s.axes[0].temperature_limit, 44);
+    b.bridge.ext_read(0, 0x0346, &mut pending).unwrap();
+    assert_eq!(pending, [1], "saved");
 }
 
 #[test]

@@ -367,6 +367,24 @@ fn write_settings_0x3f_hands_out_the_image_once_every_axis_rests() {
     assert_eq!(s.axes[0].max_speed, 2000);
 }
 
+#[test]
+fn write_settings_0x3f_while_an_axis_moves_is_acknowledged_and_written_at_rest() {
+    let mut b = line();
+    let mut img = [0u8; IMAGE_LEN];
+    assert_eq!(b.write(1, 0x51, 2000), Ok(()));
+    assert_eq!(b.set_position(1, 20_000), Ok(()));
+    b.run(50);
+    // Acknowledged (no exception 04), pending while the axis moves.
+    assert_eq!(b.write(1, 0x3F, 0), Ok(()));
+    assert_eq!(b.read(1, 0x0346, 1), Ok(vec![3]), "pending");
+    assert!(!b.bridge.take_save(&mut img));
+    b.settle(60_000);
+    assert!(b.bridge.take_save(&mut img));
+    b.bridge.saved(true);
+    assert_eq!(Settings::from_image(&img).unwrap().axes[0].max_speed, 2000);
+    assert_eq!(b.read(1, 0x0346, 1), Ok(vec![1]));
+}
+
 // --------------------------------------------------------- 9.3.24-30 ----
 
 #[test]

@@ -423,6 +423,37 @@ fn other_configuration_0x88_reads_what_0xb1_wrote_and_0x87_stores_it() {
 }
 
 #[test]
+fn save_other_0x87_while_an_axis_moves_is_done_once_it_rests() {
+    // A host that knows only the manual reads [14] = 0 and [15] = 0 as
+    // "saved": the save must then happen, deferred until every axis rests.
+    UsbCtx::default()
+        .with_usb(|mut cls, mut dev| {
+            let r = transact(
+                &mut cls,
+                &mut dev,
+                &trajectory(0, 40_000, 4000, 20_000, 20_000),
+            );
+            assert_eq!(r[14], 0);
+            cls.run(50);
+            let r = transact(&mut cls, &mut dev, &out(0x87));
+            assert_eq!(
+                (r[0], r[1], r[15], r[14]),
+                (0x02, 0x00, 0x00, 0),
+                "accepted"
+            );
+            assert_ne!(cls.stored().map(|s| s.axes[0].max_speed), Some(4000));
+            cls.settle(60_000);
+            cls.run(20);
+            assert_eq!(
+                cls.stored().map(|s| s.axes[0].max_speed),
+                Some(4000),
+                "saved at rest"
+            );
+        })
+        .expect("with_usb");
+}
+
+#[test]
 fn trajectory_0xb1_moves_to_the_final_position_with_32_bit_limits() {
     UsbCtx::default()
         .with_usb(|mut cls, mut dev| {

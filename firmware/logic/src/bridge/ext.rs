@@ -102,7 +102,8 @@ pub mod diag {
     pub const FIRMWARE_VERSION: u8 = 0x43;
     /// u32.
     pub const BUILD_ID: u8 = 0x44;
-    /// 0 no save yet, 1 the last save succeeded, 2 it failed.
+    /// 0 no save yet, 1 the last save succeeded, 2 it failed, 3 a save is
+    /// pending (accepted, written once every axis rests).
     pub const LAST_SAVE: u8 = 0x46;
     /// I2C writes longer than their command (refused), u32.
     pub const I2C_LONG: u8 = 0x47;
@@ -350,7 +351,14 @@ impl<B: ChainBus> Bridge<B> {
                 let (major, minor) = crate::postep60::device::FW_VERSION;
                 u16::from(major) << 8 | u16::from(minor)
             }),
-            (diag::LAST_SAVE, self.last_save),
+            (
+                diag::LAST_SAVE,
+                if self.save_pending() {
+                    3
+                } else {
+                    self.last_save
+                },
+            ),
         ];
         for (at, v) in words {
             if let Some(slot) = r.get_mut(usize::from(at)) {

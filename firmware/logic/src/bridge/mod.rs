@@ -13,12 +13,15 @@
 //!   ended and survives a reset only after Write settings.
 //! * **Bad input** on any bus changes nothing and is counted in
 //!   [`Diagnostics`]; reads after an unknown I2C command return zeros.
-//! * **Saving** never happens implicitly: Write settings is refused (Busy)
-//!   while any axis moves, otherwise it marks a save as pending;
-//!   [`Bridge::take_save`] hands out the image only while every axis is at
-//!   rest, and from then until [`Bridge::saved`] every request is refused
-//!   (Busy), because erasing flash stalls the CPU — and with it the control
-//!   loop — for up to 4 s, and no motor may start moving just before that.
+//! * **Saving** never happens implicitly. Write settings is accepted on
+//!   every bus at any time (except while a save is being written) and takes
+//!   the settings as they are when it is accepted; it is written once every
+//!   axis rests ([`Bridge::take_save`] hands the image out only then), and
+//!   until then it is visible as pending (diagnostics 0x0346 = 3). From the
+//!   hand-out until [`Bridge::saved`] every request is refused (Busy),
+//!   because erasing flash stalls the CPU — and with it the control loop —
+//!   for up to 4 s, and no motor may start moving just before that. A
+//!   second Write settings before the first is written replaces it.
 //! * **The MCU's watchdog window** ([`Bridge::watchdog_window`]): short
 //!   (tens of ms) whenever any axis may move, so a stalled control loop
 //!   leaves a chip running on its last Run for no longer than that; long
@@ -277,9 +280,13 @@ pub struct Bridge<B: ChainBus> {
     supply: u16,
     temperature: u16,
     ports: [Port; 2],
-    save_pending: bool,
-    /// An image was handed out and is being written: requests wait.
+    /// A Write settings accepted and not yet handed out: the settings as
+    /// they were when it was accepted.
+    pending_save: Option<Settings>,
+    /// An image was handed out and is being written: requests wait. The
+    /// settings it holds (what the store holds once it is written).
     saving: bool,
+    writing: Option<Settings>,
     reset_pending: Option<ResetTarget>,
     addresses_changed: bool,
     run_mode: RunMode,
@@ -415,8 +422,9 @@ impl<B: ChainBus> Bridge<B> {
                     last: None,
                 },
             ],
-            save_pending: false,
+            pending_save: None,
             saving: false,
+            writing: None,
             reset_pending: None,
             addresses_changed: false,
             run_mode: RunMode::Application,
@@ -551,15 +559,29 @@ impl<B: ChainBus> Bridge<B> {
     /// The settings image to store, once a save is pending and every axis is
     /// at rest. Report the outcome with [`Bridge::saved`].
     pub fn take_save(&mut self, out: &mut [u8; IMAGE_LEN]) -> bool {
-        if !self.save_pending || !self.group.is_settled() {
+        if self.pending_save.is_none() || !self.group.is_settled() {
             return false;
         }
-        self.save_pending = false;
+        let Some(settings) = self.pending_save.take() else {
+            return false;
+        };
         // Until `saved`, every request is refused (Busy): nothing may start a
         // move while flash programming is about to stall the CPU.
         self.saving = true;
-        self.settings().to_image(out);
+        settings.to_image(out);
+        self.writing = Some(settings);
         true
+    }
+
+    /// Accept a save of the settings as they are now (module doc, "Saving").
+    fn queue_save(&mut self) {
+        self.pending_save = Some(self.settings());
+    }
+
+    /// A save was accepted and is not written yet (waiting for every axis
+    /// to rest, or being written).
+    pub fn save_pending(&self) -> bool {
+        self.pending_save.is_some() || self.saving
     }
 
     /// The MCU watchdog's window the firmware must have in effect now
@@ -582,9 +604,10 @@ impl<B: ChainBus> Bridge<B> {
     /// Outcome of a save handed out by [`Bridge::take_save`].
     pub fn saved(&mut self, ok: bool) {
         self.saving = false;
+        let written = self.writing.take();
         self.last_save = if ok { 1 } else { 2 };
         if ok {
-            self.stored = self.settings();
+            self.stored = written.unwrap_or_else(|| self.settings());
             self.diag.saves = self.diag.saves.saturating_add(1);
         } else {
             self.diag.save_errors = self.diag.save_errors.saturating_add(1);
@@ -833,8 +856,7 @@ impl<B: ChainBus> Bridge<B> {
             self.diag.refused = self.diag.refused.saturating_add(1);
             return Err(CommandError::BootMode);
         }
-        let busy = self.saving || (req == Request::WriteSettings && !self.group.is_settled());
-        if busy {
+        if self.saving {
             self.diag.refused = self.diag.refused.saturating_add(1);
             return Err(CommandError::Busy);
         }
@@ -846,7 +868,7 @@ impl<B: ChainBus> Bridge<B> {
         let clamped = d.clamps.wrapping_sub(clamps);
         self.diag.limit_clamps = self.diag.limit_clamps.saturating_add(clamped);
         match result {
-            Ok(Effect::SaveSettings) => self.save_pending = true,
+            Ok(Effect::SaveSettings) => self.queue_save(),
             Ok(Effect::SystemReset) => self.request_reset(ResetTarget::Application),
             Ok(Effect::SetAddress { current, new }) => {
                 if let Err(e) = self.change_address(k, current, new) {

@@ -534,7 +534,7 @@ impl<B: ChainBus> Bridge<B> {
             }
         }
         // Stored once every axis rests (it was just stopped).
-        self.save_pending = true;
+        self.queue_save();
         status::DONE
     }
 }

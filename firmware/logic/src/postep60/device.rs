@@ -221,8 +221,8 @@ pub enum CommandError {
     Unsupported,
     /// Address change: BYTE0 is not this axis's address, or the new one is invalid.
     BadAddress,
-    /// The bridge is saving settings (flash programming stalls the CPU) or an
-    /// axis is moving when Write settings arrives: try again at rest.
+    /// The bridge is writing settings to flash (programming stalls the
+    /// CPU): try again when the write is over; or homing runs.
     Busy,
     /// The bridge runs in its boot mode (after USB 0x02): no motion, no
     /// settings changes until the application is restarted.
