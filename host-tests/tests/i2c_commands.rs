@@ -265,6 +265,23 @@ fn address_0x04_accepts_only_1_to_127() {
 }
 
 #[test]
+fn address_0x04_that_would_leave_an_axis_without_a_7_bit_address_is_refused() {
+    // The filed case: 2 axes, 04 01 7F: axis 0 at 127 would put axis 1 at
+    // 128, which is no I2C address. Refused, and why is readable.
+    let mut b = bench();
+    b.write(A0, &[0x04, 1, 0x7F]);
+    assert_eq!(b.bridge.i2c_addresses(), (1, Some(2)), "unchanged");
+    let mut r = [0u16];
+    b.bridge.ext_read(0, 0x0349, &mut r).unwrap();
+    assert_eq!(r, [6], "last refusal: axis 0, bad address");
+    // 126 is fine: axis 1 gets 127.
+    b.write(A0, &[0x04, 1, 126]);
+    assert_eq!(b.bridge.i2c_addresses(), (126, Some(127)));
+    assert_eq!(b.query(126, 0x14, 1), [4]);
+    assert_eq!(b.query(127, 0x14, 1), [4]);
+}
+
+#[test]
 fn driver_mode_0x05_accepts_auto_run() {
     let mut b = bench();
     b.write(A0, &[0x05, 6]);
@@ -405,9 +422,7 @@ fn thermal_shutdown_sets_ots_until_the_chip_cools() {
     );
     b.chip_mut(1).inject(Fault::ThermalNormal);
     b.run(4);
-    b.write(A1, &[0x35]);
-    b.run(4);
-    assert_eq!(b.query(A1, 0x25, 1), [0]);
+    assert_eq!(b.query(A1, 0x25, 1), [0], "cooled: cleared by itself");
 }
 
 #[test]
@@ -832,16 +847,25 @@ fn auto_run_does_not_start_on_a_faulted_axis() {
 }
 
 #[test]
-fn thermal_shutdown_stays_latched_after_cooling_until_reset() {
+fn ots_clears_by_itself_once_the_chip_has_cooled() {
+    // Manual 8.3.17: "OTS bit will clear once temperature has fallen to safe
+    // levels"; Reset faults cannot clear it.
     let mut b = bench();
+    b.write(A0, &[0x50, 0x10, 0x27, 0, 0]);
+    b.run(100);
     b.chip_mut(0).inject(Fault::ThermalShutdown);
     b.run(4);
+    assert_eq!(b.query(A0, 0x25, 1)[0] & 1, 1);
+    let stopped_at = b.chip(0).abs_pos();
     b.chip_mut(0).inject(Fault::ThermalNormal);
     b.run(10);
-    assert_eq!(b.query(A0, 0x25, 1)[0] & 1, 1);
-    b.write(A0, &[0x35]);
-    b.run(4);
-    assert_eq!(b.query(A0, 0x25, 1), [0]);
+    assert_eq!(b.query(A0, 0x25, 1), [0], "cleared, no Reset faults needed");
+    // The axis stays where it stopped until a new motion command.
+    b.run(500);
+    assert_eq!(b.chip(0).abs_pos(), stopped_at);
+    b.write(A0, &[0x50, 0x10, 0x27, 0, 0]);
+    b.settle(30_000);
+    assert_eq!(b.chip(0).abs_pos(), phys(10_000));
 }
 
 // ------------------------------------- motion truth on this bus (issue 8) ----

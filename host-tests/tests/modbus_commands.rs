@@ -106,6 +106,13 @@ fn set_address_0x04_with_a_wrong_current_address_or_an_invalid_new_one_is_refuse
     assert_eq!(b.write(1, 0x04, 0x0001), Err(4), "new address 0");
     assert_eq!(b.write(1, 0x04, 0x8001), Err(4), "new address 128");
     assert_eq!(b.write(2, 0x04, 0x0102), Err(4), "axis 0 would need id 0");
+    // Axis 1 at 128: a valid Modbus id but no I2C address (one base serves both).
+    assert_eq!(b.write(1, 0x04, 0x7F01), Err(4), "axis 1 would need 128");
+    assert_eq!(
+        b.read(1, 0x0349, 1),
+        Ok(vec![6]),
+        "why: bad address, axis 0"
+    );
     assert_eq!(b.bridge.base_address(), 1);
 }
 

@@ -107,7 +107,11 @@ pub mod diag {
     pub const LAST_SAVE: u8 = 0x46;
     /// I2C writes longer than their command (refused), u32.
     pub const I2C_LONG: u8 = 0x47;
-    pub const LEN: usize = 0x49;
+    /// The last refused request: axis · 256 + reason (1 wrong mode, 2
+    /// asleep, 3 faulted, 4 ignored, 5 unsupported, 6 bad address, 7 busy,
+    /// 8 boot mode); 0 none since the counters were cleared.
+    pub const LAST_REFUSAL: u8 = 0x49;
+    pub const LEN: usize = 0x4A;
 }
 
 /// Homing (0x04nn, per axis).
@@ -358,6 +362,11 @@ impl<B: ChainBus> Bridge<B> {
                 } else {
                     self.last_save
                 },
+            ),
+            (
+                diag::LAST_REFUSAL,
+                self.last_refusal
+                    .map_or(0, |(k, e)| u16::from(k) << 8 | u16::from(e.code())),
             ),
         ];
         for (at, v) in words {

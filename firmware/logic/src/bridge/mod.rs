@@ -323,6 +323,8 @@ pub struct Bridge<B: ChainBus> {
     /// Control ticks in a row whose chain batch failed.
     failed_ticks: u32,
     source: SettingsSource,
+    /// The last refused request: axis and reason (diagnostics 0x0349).
+    last_refusal: Option<(u8, CommandError)>,
     pub diag: Diagnostics,
 }
 
@@ -448,6 +450,7 @@ impl<B: ChainBus> Bridge<B> {
             chain_error,
             failed_ticks: 0,
             source,
+            last_refusal: None,
             diag: Diagnostics::default(),
         }
     }
@@ -833,6 +836,7 @@ impl<B: ChainBus> Bridge<B> {
     /// Clear every diagnostics counter (a write to 0x0300).
     pub fn clear_diagnostics(&mut self) {
         self.diag = Diagnostics::default();
+        self.last_refusal = None;
         self.modbus_base = self.modbus;
         for (b, a) in self.resets_base.iter_mut().zip(self.group.iter()) {
             *b = a.chip_resets();
@@ -850,14 +854,23 @@ impl<B: ChainBus> Bridge<B> {
         self.failed_ticks >= CHAIN_DEAD_TICKS
     }
 
-    /// Execute a request on axis `k` (any bus).
+    /// Execute a request on axis `k` (any bus). A refusal is counted and
+    /// kept as the last one (diagnostics 0x0349: axis and reason), which is
+    /// how an I2C master — it gets no error reply — learns why.
     pub fn request(&mut self, k: usize, req: Request) -> Result<Effect, CommandError> {
-        if self.run_mode == RunMode::Boot {
+        let result = self.perform(k, req);
+        if let Err(e) = result {
             self.diag.refused = self.diag.refused.saturating_add(1);
+            self.last_refusal = Some((u8::try_from(k).unwrap_or(u8::MAX), e));
+        }
+        result
+    }
+
+    fn perform(&mut self, k: usize, req: Request) -> Result<Effect, CommandError> {
+        if self.run_mode == RunMode::Boot {
             return Err(CommandError::BootMode);
         }
         if self.saving {
-            self.diag.refused = self.diag.refused.saturating_add(1);
             return Err(CommandError::Busy);
         }
         let (Some(d), Some(a)) = (self.devices.get_mut(k), self.group.axis_mut(k)) else {
@@ -870,16 +883,15 @@ impl<B: ChainBus> Bridge<B> {
         match result {
             Ok(Effect::SaveSettings) => self.queue_save(),
             Ok(Effect::SystemReset) => self.request_reset(ResetTarget::Application),
-            Ok(Effect::SetAddress { current, new }) => {
-                if let Err(e) = self.change_address(k, current, new) {
-                    self.diag.refused = self.diag.refused.saturating_add(1);
-                    return Err(e);
-                }
-            }
-            Ok(Effect::None) => {}
-            Err(_) => self.diag.refused = self.diag.refused.saturating_add(1),
+            Ok(Effect::SetAddress { current, new }) => self.change_address(k, current, new)?,
+            Ok(Effect::None) | Err(_) => {}
         }
         result
+    }
+
+    /// The last refused request: its axis and why.
+    pub fn last_refusal(&self) -> Option<(u8, CommandError)> {
+        self.last_refusal
     }
 
     /// Answer a query for axis `k` (any bus); `None` for a missing axis.
@@ -902,6 +914,11 @@ impl<B: ChainBus> Bridge<B> {
         (k < self.axes()).then_some(k)
     }
 
+    /// Address change (0x04) sent to axis `k`: the base moves so that axis
+    /// `k` answers `new`. Refused unless every axis then has an address on
+    /// every bus — one base serves I2C (7-bit, 1..=127) and Modbus
+    /// (1..=247), so the narrower I2C range binds: with N axes the base is
+    /// at most 128 − N.
     fn change_address(&mut self, k: usize, current: u8, new: u8) -> Result<(), CommandError> {
         let n = self.axes();
         if self.address_of(k) != Some(current) || !(1..=I2C_ADDRESS_MAX).contains(&new) {
@@ -913,7 +930,11 @@ impl<B: ChainBus> Bridge<B> {
             .filter(|b| *b >= 1)
             .ok_or(CommandError::BadAddress)?;
         let last = usize::from(base) + n.saturating_sub(1);
-        if last > usize::from(crate::transport::modbus::ID_MAX) {
+        let on_every_bus = [
+            usize::from(I2C_ADDRESS_MAX),
+            usize::from(crate::transport::modbus::ID_MAX),
+        ];
+        if on_every_bus.iter().any(|max| last > *max) {
             return Err(CommandError::BadAddress);
         }
         if base != self.base_address {

@@ -73,17 +73,10 @@ pub(super) struct UsbState {
     stream_report: Option<InReport>,
 }
 
+/// `InDATA[14]` of a refusal: the reason's code ([`CommandError::code`],
+/// the same numbers as [`status`]'s).
 fn status_of(e: CommandError) -> u8 {
-    match e {
-        CommandError::WrongMode => status::WRONG_MODE,
-        CommandError::Asleep => status::ASLEEP,
-        CommandError::Faulted => status::FAULTED,
-        CommandError::Ignored => status::IGNORED,
-        CommandError::Unsupported => status::UNSUPPORTED,
-        CommandError::BadAddress => status::BAD_ADDRESS,
-        CommandError::Busy => status::BUSY,
-        CommandError::BootMode => status::BOOT_MODE,
-    }
+    e.code()
 }
 
 fn ext_status(r: Result<(), ExtError>) -> u8 {

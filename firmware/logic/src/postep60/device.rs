@@ -21,8 +21,9 @@
 //!   for both bridges), UVLO ← UVLO or a detected chip reset (not ADC UVLO:
 //!   an unused ADCIN may read as undervoltage for good), STD ← stall now, STDLAT ←
 //!   stall since the last reset. APDF/BPDF never set. Faults 0–5 stop the axis
-//!   and refuse motion until Reset faults (0x35), which cannot clear OTS while
-//!   the chip is still hot; STD/STDLAT do not stop anything.
+//!   and refuse motion: 1–5 until Reset faults (0x35); OTS while the chip is
+//!   in thermal shutdown — it clears by itself once the chip has cooled (the
+//!   manual), Reset faults cannot clear it; STD/STDLAT do not stop anything.
 //! * **Currents**: full-scale current while active; the hold current drops to
 //!   the idle current 10 s after the last motion (driver status 3); above the
 //!   temperature limit run and hold currents drop to the overheat current
@@ -227,6 +228,23 @@ pub enum CommandError {
     /// The bridge runs in its boot mode (after USB 0x02): no motion, no
     /// settings changes until the application is restarted.
     BootMode,
+}
+
+impl CommandError {
+    /// The reason's number on every bus that reports one (USB `InDATA[14]`,
+    /// diagnostics 0x0349).
+    pub const fn code(self) -> u8 {
+        match self {
+            CommandError::WrongMode => 1,
+            CommandError::Asleep => 2,
+            CommandError::Faulted => 3,
+            CommandError::Ignored => 4,
+            CommandError::Unsupported => 5,
+            CommandError::BadAddress => 6,
+            CommandError::Busy => 7,
+            CommandError::BootMode => 8,
+        }
+    }
 }
 
 /// What the bridge must do after a request succeeded.
@@ -463,6 +481,12 @@ impl Device {
         }
         let newly = f & !self.faults & fault::STOPPING;
         self.faults |= f;
+        // OTS follows the chip: it "will clear once temperature has fallen
+        // to safe levels" (manual 8.3.17) and Reset faults cannot clear it.
+        // The axis stays stopped until a new motion command.
+        if f & fault::OTS == 0 {
+            self.faults &= !fault::OTS;
+        }
         // STD follows the stall flag; STDLAT keeps it until Reset faults.
         if s.stalled() {
             self.faults |= fault::STD | fault::STDLAT;
