@@ -2,7 +2,7 @@
 //! writes of any address and length, control ticks, transfers through
 //! simulated 74HC165/74HC595 chips that complete or fail, input changes and
 //! persistence round-trips, in any order. Checks: no panic, and the
-//! invariants listed in `bridge_logic::ioext::exercise` (a refused access
+//! invariants listed in `host_tests::ioext_fuzz` (a refused access
 //! changes nothing, configuration bits, one transfer at a time, periods
 //! never faster than asked, status and receive data rules, image
 //! round-trip).
@@ -14,5 +14,5 @@
 use libfuzzer_sys::fuzz_target;
 
 fuzz_target!(|data: &[u8]| {
-    bridge_logic::ioext::exercise::run(data);
+    host_tests::ioext_fuzz::run(data);
 });

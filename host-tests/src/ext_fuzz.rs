@@ -11,8 +11,8 @@
 //! * no motor moves unless a homing start (0x0400 = 1) was accepted — the
 //!   extension space has no other motion command.
 
+use crate::clock::SimClock;
 use bridge_logic::postep60::{Board, Settings};
-use bridge_logic::sim::SimClock;
 
 use crate::sim_bridge::{chip, new_bridge, TICK_US};
 

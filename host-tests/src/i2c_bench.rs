@@ -2,9 +2,10 @@
 //! talking to it through the same `I2cSlave` state machine the firmware's
 //! interrupt handlers drive, and the virtual clock ([`SimClock`]).
 
+use crate::clock::SimClock;
 use bridge_logic::bridge::Bridge;
 use bridge_logic::postep60::{Board, Settings};
-use bridge_logic::sim::{SimChain, SimClock};
+use bridge_logic::sim::SimChain;
 use bridge_logic::transport::i2c::{I2cSlave, Which};
 
 pub use crate::sim_bridge::TICK_US;

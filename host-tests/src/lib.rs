@@ -1,8 +1,10 @@
 //! Harnesses around the simulated hardware in `bridge_logic::sim`, shared by
 //! the scenario tests in `tests/`, the plot and the benchmark binaries.
 
+pub mod clock;
 pub mod ext_fuzz;
 pub mod i2c_bench;
+pub mod ioext_fuzz;
 pub mod modbus_bench;
 pub mod rig;
 pub mod rm0090;

@@ -7,10 +7,11 @@
 //! The CRC here is a bitwise CRC-16/MODBUS written from the spec, not the
 //! `crc` crate the server uses, so the two check each other.
 
+use crate::clock::SimClock;
 use bridge_logic::bridge::Bridge;
 use bridge_logic::postep60::settings::Serial;
 use bridge_logic::postep60::{Board, Settings};
-use bridge_logic::sim::{SimChain, SimClock};
+use bridge_logic::sim::SimChain;
 use bridge_logic::transport::modbus::{RtuServer, Timing};
 
 pub use crate::sim_bridge::TICK_US;
@@ -395,7 +396,7 @@ impl<T: ModbusTarget> ModbusTarget for Recording<'_, T> {
         axis: usize,
         address: u16,
         out: &mut [u16],
-    ) -> Result<(), bridge_logic::bridge::ExtError> {
+    ) -> Result<(), bridge_logic::ext_space::ExtError> {
         self.inner.ext_read(axis, address, out)
     }
     fn ext_write(
@@ -403,7 +404,7 @@ impl<T: ModbusTarget> ModbusTarget for Recording<'_, T> {
         axis: usize,
         address: u16,
         data: &[u16],
-    ) -> Result<(), bridge_logic::bridge::ExtError> {
+    ) -> Result<(), bridge_logic::ext_space::ExtError> {
         self.inner.ext_write(axis, address, data)
     }
 }

@@ -2,10 +2,11 @@
 //! them at a fixed control tick, and a virtual clock that advances the chips
 //! by exactly one tick per control tick.
 
+use crate::clock::{SimClock, SimControl};
 use bridge_logic::motion::{Axis, AxisConfig, AxisGroup, AxisState, Limits, TickReport};
 use bridge_logic::powerstep::chain::Chain;
 use bridge_logic::powerstep::registers::sign_extend_22;
-use bridge_logic::sim::{SimChain, SimClock, SimControl};
+use bridge_logic::sim::SimChain;
 
 /// An axis group and its chain as one simulated control loop.
 pub struct GroupOnChain<'a> {

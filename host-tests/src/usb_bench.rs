@@ -8,11 +8,12 @@
 //! The bridge's next IN report is put into the IN endpoint when the host
 //! reads ([`read`]): the emulated bus has no IN-token timing of its own.
 
+use crate::clock::SimClock;
 use bridge_logic::bridge::{Bridge, RunMode};
 use bridge_logic::persist::Store;
 use bridge_logic::postep60::settings::IMAGE_LEN;
 use bridge_logic::postep60::{Board, Settings};
-use bridge_logic::sim::{SimChain, SimClock, SimFlash};
+use bridge_logic::sim::{SimChain, SimFlash};
 use bridge_logic::transport::usb::{self, PoStepHid, REPORT_LEN};
 use usb_device::class_prelude::*;
 use usb_device::device::UsbDevice;

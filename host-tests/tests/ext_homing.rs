@@ -6,7 +6,8 @@
 use bridge_logic::bridge::Bridge;
 use bridge_logic::postep60::{Query, Request, Settings, Value};
 use bridge_logic::powerstep::registers::Register;
-use bridge_logic::sim::{Fault, SimChain, SimClock};
+use bridge_logic::sim::{Fault, SimChain};
+use host_tests::clock::SimClock;
 use host_tests::modbus_bench::ModbusBench;
 use host_tests::sim_bridge::{chip, chip_mut, new_bridge, TICK_US};
 
@@ -69,7 +70,11 @@ impl Home {
         out[0]
     }
 
-    fn write(&mut self, address: u16, data: &[u16]) -> Result<(), bridge_logic::bridge::ExtError> {
+    fn write(
+        &mut self,
+        address: u16,
+        data: &[u16],
+    ) -> Result<(), bridge_logic::ext_space::ExtError> {
         self.bridge.ext_write(0, address, data)
     }
 

@@ -57,7 +57,7 @@ fn the_usb_reports_corpus_passes() {
 
 #[test]
 fn the_ioext_registers_corpus_passes() {
-    let n = replay("ioext_registers", bridge_logic::ioext::exercise::run);
+    let n = replay("ioext_registers", host_tests::ioext_fuzz::run);
     assert!(n > 0, "no corpus in fuzz/corpus-min/ioext_registers");
 }
 

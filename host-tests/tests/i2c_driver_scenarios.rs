@@ -9,7 +9,8 @@
 
 use bridge_logic::bridge::Bridge;
 use bridge_logic::postep60::{Board, Settings};
-use bridge_logic::sim::{SimChain, SimClock};
+use bridge_logic::sim::SimChain;
+use host_tests::clock::SimClock;
 use host_tests::i2c_bench::{le_i32, I2cBench};
 use host_tests::rm0090::i2c_rig::I2cRig;
 use host_tests::sim_bridge::{new_bridge, TICK_US};

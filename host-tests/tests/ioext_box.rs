@@ -9,7 +9,8 @@
 
 use bridge_logic::bridge::{Bridge, ExtError};
 use bridge_logic::postep60::{DriverMode, Query, Request, Settings, Value};
-use bridge_logic::sim::{ShiftChain, SimChain, SimClock};
+use bridge_logic::sim::{ShiftChain, SimChain};
+use host_tests::clock::SimClock;
 use host_tests::modbus_bench::ModbusBench;
 use host_tests::sim_bridge::{chip, new_bridge, TICK_US};
 

@@ -7,7 +7,8 @@ use bridge_logic::motion::axis::logical_to_physical;
 use bridge_logic::motion::{AxisConfig, AxisFault, Limits};
 use bridge_logic::powerstep::registers::{sign_extend_22, wrap_22};
 use bridge_logic::powerstep::{DriveMode, StepSel};
-use bridge_logic::sim::{Fault, SimClock, SimControl};
+use bridge_logic::sim::Fault;
+use host_tests::clock::{SimClock, SimControl};
 use host_tests::rig::Rig;
 use host_tests::rng::Rng;
 

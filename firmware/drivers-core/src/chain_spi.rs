@@ -86,9 +86,8 @@
 //! checks the real window timing. QEMU 7.2 has no DMA controller and no
 //! TIM7, so the QEMU image's chain is the simulator (`platform/qemu.rs`).
 
-use bridge_logic::bridge::BatchState;
-use bridge_logic::powerstep::chain::{ChainBus, Frames, Plan, MAX_DEVICES, MAX_WINDOWS};
 use core::sync::atomic::{compiler_fence, Ordering};
+use powerstep01::chain::{BatchState, ChainBus, Frames, Plan, MAX_DEVICES, MAX_WINDOWS};
 
 use crate::Regs;
 

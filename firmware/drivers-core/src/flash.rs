@@ -5,7 +5,7 @@
 //! (`firmware::drivers::flash`), on the host the RM0090 model
 //! `host_tests::rm0090::flash`.
 //!
-//! [`StoreFlash`] is the [`NorFlash`] that `bridge_logic::persist::Store`
+//! [`StoreFlash`] is the [`NorFlash`] that `settings_store::Store`
 //! runs on: store offsets `0..128K` are sector 10, `128K..256K` sector 11;
 //! `ERASE_SIZE` is one sector, `WRITE_SIZE` 4, `READ_SIZE` 1. Every
 //! guarantee of the store (old or new after a power cut, CRCs, wear
@@ -151,7 +151,7 @@ pub const PROGRAM_BYTE_MAX_US: u32 = 100;
 pub const BUSY_POLLS_MAX: u32 = 1 << 30;
 
 const _: () = assert!(STORE_BASE as usize - FLASH_BASE as usize + STORE_SIZE == 1024 * 1024);
-const _: () = assert!(SECTOR_SIZE >= bridge_logic::persist::MAX_RECORD);
+const _: () = assert!(SECTOR_SIZE >= settings_store::MAX_RECORD);
 
 /// What FLASH_SR reported, or what the driver saw go wrong.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -44,8 +44,8 @@
 //! at once) and at most RLR + 1.
 
 use bridge_logic::bridge::WatchdogWindow;
-use bridge_logic::persist::MAX_RECORD;
 use bridge_logic::rate::PERIOD_MAX_US;
+use settings_store::MAX_RECORD;
 
 use crate::flash::{ERASE_MAX_MS, PROGRAM_BYTE_MAX_US};
 use crate::Regs;

@@ -23,13 +23,17 @@
 #![warn(missing_debug_implementations)]
 
 pub mod bridge;
+pub mod ext_space;
 pub mod ioext;
 pub mod motion;
-pub mod persist;
 pub mod postep60;
-pub mod powerstep;
 pub mod rate;
 pub mod transport;
+
+/// The powerSTEP01 driver layer (its own crate, `powerstep01`).
+pub use powerstep01 as powerstep;
+/// The power-cut-safe settings store (its own crate, `settings-store`).
+pub use settings_store as persist;
 
 // The simulator is built for this crate's own tests and, with the `sim`
 // feature, for host-tests and the QEMU image.

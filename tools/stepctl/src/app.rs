@@ -3,7 +3,7 @@
 use std::io::IsTerminal;
 use std::time::{Duration, Instant};
 
-use bridge_logic::bridge::ext::{block, diag, homing};
+use bridge_logic::ext_space::{block, diag, homing};
 use comfy_table::{presets, Table};
 use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::{json, Value};

@@ -1,7 +1,7 @@
 //! What a box is asked, in the register map's terms: axis status, box
 //! info, the reasons behind an exception 04.
 
-use bridge_logic::bridge::ext::{axis, block, diag, homing};
+use bridge_logic::ext_space::{axis, block, diag, homing};
 use serde::Serialize;
 
 use crate::bus::{i32_of, u32_of, Bus};

@@ -13,7 +13,7 @@
 
 use std::collections::BTreeMap;
 
-use bridge_logic::bridge::ext::{block, homing, watchdog};
+use bridge_logic::ext_space::{block, homing, watchdog};
 use bridge_logic::postep60::current::Current;
 use bridge_logic::postep60::settings::{TEMPERATURE_LIMIT_MAX, TUNABLE};
 use bridge_logic::powerstep::registers::Register;

@@ -224,7 +224,7 @@ mod tests {
     }
 }
 
-pub mod ext;
+pub mod ext_space;
 pub mod handoff;
 mod i2c;
 mod io;
@@ -232,8 +232,9 @@ mod modbus;
 mod pipeline;
 mod usb;
 
-pub use ext::ExtError;
-pub use pipeline::{BatchState, PipelinedTick};
+pub use crate::ext_space::ExtError;
+pub use crate::powerstep::chain::BatchState;
+pub use pipeline::PipelinedTick;
 
 pub use usb::STREAM_PERIOD_MS;
 

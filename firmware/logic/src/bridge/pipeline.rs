@@ -24,19 +24,7 @@
 //! it is skipped.
 
 use super::Bridge;
-use crate::powerstep::chain::{ChainBus, Frames, Plan};
-
-/// The chain driver's batch as the next control tick finds it.
-#[derive(Debug)]
-pub enum BatchState<'a, E> {
-    /// No batch started since the last one was handed over (or none ever).
-    Idle,
-    /// The windows are still going out.
-    Running,
-    /// Over: what came back (row w = window w's N bytes), or the bus error
-    /// that ended it.
-    Done(Result<&'a Frames, E>),
-}
+use crate::powerstep::chain::{BatchState, ChainBus, Plan};
 
 /// What [`Bridge::tick_pipelined`] did.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

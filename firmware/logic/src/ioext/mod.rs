@@ -85,8 +85,6 @@ pub mod plan;
 pub mod registers;
 pub mod wire;
 
-#[cfg(any(test, feature = "sim"))]
-pub mod exercise;
 #[cfg(test)]
 mod tests;
 

@@ -7,19 +7,18 @@
 //! * [`chain`] — N chips wired as one daisy-chain shift register, usable as
 //!   the [`ChainBus`](crate::powerstep::ChainBus) of a
 //!   [`Chain`](crate::powerstep::Chain).
-//! * [`clock`] — virtual time: a control tick, then one tick period of chip
-//!   time; the one clock every simulated control loop runs on.
-//! * [`flash`] — NOR flash with power-cut injection, for the settings store.
+//!
+//! The settings store's simulated flash is `settings_store::sim` (re-exported
+//! here), the virtual clock of simulated control loops is host-tests'
+//! `clock`.
 //! * [`shift`] — 74HC165/74HC595 shift registers on the I/O extension's SPI port.
 
 pub mod chain;
-pub mod clock;
-pub mod flash;
 pub mod powerstep01;
 pub mod shift;
 
 pub use chain::SimChain;
-pub use clock::{SimClock, SimControl};
-pub use flash::{SimFlash, SimFlashError};
 pub use powerstep01::{Fault, HomeCam, Powerstep01, TICK_NS};
+pub use settings_store::sim as flash;
+pub use settings_store::sim::{SimFlash, SimFlashError};
 pub use shift::{ConsoleCommand, ShiftChain};

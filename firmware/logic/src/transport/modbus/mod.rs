@@ -79,7 +79,7 @@ pub use map::Exception;
 use crc::{Crc, CRC_16_MODBUS};
 use heapless::Vec;
 
-use crate::bridge::ExtError;
+use crate::ext_space::ExtError;
 use crate::postep60::settings::{Parity, Serial};
 use crate::postep60::{CommandError, Effect, Query, Request, Value};
 

@@ -5,9 +5,9 @@
 //! control loop through [`SimClock::tick`], so they all agree on what "one
 //! tick" means.
 
-use super::SimChain;
-use crate::bridge::Bridge;
-use crate::ioext::Action;
+use bridge_logic::bridge::Bridge;
+use bridge_logic::ioext::Action;
+use bridge_logic::sim::SimChain;
 
 /// A control loop that drives simulated chips.
 pub trait SimControl {

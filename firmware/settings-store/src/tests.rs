@@ -12,7 +12,7 @@
 use embedded_storage::nor_flash::{ErrorType, ReadNorFlash};
 
 use super::*;
-use crate::sim::flash::{SimFlash, SimFlashError, SplitMix64};
+use crate::sim::{SimFlash, SimFlashError, SplitMix64};
 
 /// Small sectors (3 full records each) so that moves happen often.
 const S: usize = 4096;

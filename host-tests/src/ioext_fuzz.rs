@@ -19,14 +19,14 @@
 
 #![allow(clippy::panic, clippy::arithmetic_side_effects)]
 
-use super::config::cfg;
-use super::registers::addr;
-use super::wire::wire;
-use super::{
-    clock::requested_period_ns, Action, AxisOutputs, Clocks, IoExtension, IoSettings, TransferPlan,
+use bridge_logic::ioext::config::cfg;
+use bridge_logic::ioext::registers::addr;
+use bridge_logic::ioext::wire::wire;
+use bridge_logic::ioext::{
+    requested_period_ns, Action, AxisOutputs, Clocks, IoExtension, IoSettings, TransferPlan,
     IMAGE_LEN,
 };
-use crate::sim::shift::ShiftChain;
+use bridge_logic::sim::ShiftChain;
 
 struct Bytes<'a>(core::slice::Iter<'a, u8>);
 
@@ -58,7 +58,7 @@ fn check_plan(io: &IoExtension, p: &TransferPlan) {
         .period
         .at_least_ns(requested_period_ns(c.period_n())));
     assert_eq!(p.tx, p.tx.truncated(p.bits));
-    let steps: heapless::Vec<_, 520> = wire(p).collect();
+    let steps: Vec<_> = wire(p).collect();
     let mut edges = 0usize;
     for w in steps.windows(2) {
         if let [a, b] = w {
@@ -143,7 +143,7 @@ pub fn run(data: &[u8]) {
                     assert!(io.status());
                     last_bits = p.bits;
                 } else {
-                    assert!(io.complete(&super::WireBits::ZERO).is_err());
+                    assert!(io.complete(&bridge_logic::ioext::WireBits::ZERO).is_err());
                 }
             }
             4 => {

@@ -169,7 +169,7 @@ impl Status {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::powerstep::commands::Direction;
+    use crate::commands::Direction;
 
     #[test]
     fn forum_value_after_soft_stop_decodes_as_idle_forward_with_uvlo_latched() {

@@ -134,6 +134,9 @@
 //! about 256 KiB of memory-mapped reads. A save reads back the record it
 //! wrote (and, after an erase, the erased sector) to verify it.
 
+#![cfg_attr(not(test), no_std)]
+#![forbid(unsafe_code)]
+#![warn(missing_debug_implementations)]
 #![deny(
     clippy::indexing_slicing,
     clippy::arithmetic_side_effects,
@@ -392,6 +395,10 @@ impl<F: NorFlash> Store<F> {
 
 mod format;
 mod scan;
+/// The simulated NOR flash with power cuts (tests; feature `sim` for
+/// host-tests and the QEMU image).
+#[cfg(any(test, feature = "sim"))]
+pub mod sim;
 #[cfg(test)]
 mod tests;
 mod write;

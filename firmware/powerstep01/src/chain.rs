@@ -55,6 +55,20 @@ pub trait ChainBus {
     fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), Self::Error>;
 }
 
+/// A chain driver that clocks a plan's windows on its own (by DMA) reports
+/// its batch to the next control tick as this: the contract between such a
+/// driver and the control tick that plans and absorbs its batches.
+#[derive(Debug)]
+pub enum BatchState<'a, E> {
+    /// No batch started since the last one was handed over (or none ever).
+    Idle,
+    /// The windows are still going out.
+    Running,
+    /// Over: what came back (row w = window w's N bytes), or the bus error
+    /// that ended it.
+    Done(Result<&'a Frames, E>),
+}
+
 /// Why a batch cannot be scheduled.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -626,7 +640,7 @@ pub fn clock_windows<B: ChainBus>(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::powerstep::commands::Direction;
+    use crate::commands::Direction;
 
     #[test]
     fn status_poll_of_n_devices_takes_three_windows() {

@@ -1,0 +1,146 @@
+//! The extension address space: one map of 16-bit registers, the same on
+//! every bus — Modbus addresses with a high byte ≠ 0, I2C commands
+//! 0x72/0x73 and USB commands 0xE0/0xE1 carry it. This module is its
+//! address map and its error, below the transports (which encode them) and
+//! the bridge (which executes accesses: `bridge::ext_space`). Everything here
+//! is an extension of this bridge, not PoStep60 behaviour.
+//!
+//! | block | addresses | what | scope |
+//! |---|---|---|---|
+//! | chip | 0x01nn | powerSTEP01 register `nn` (0x01..=0x1B), right-aligned; 22/20-bit ones (ABS_POS, MARK, SPEED) in two registers, high word first | axis |
+//! | I/O extension | 0x02nn | the Copley-style SPI extension (`crate::ioext::registers`) | bridge |
+//! | diagnostics | 0x03nn | counters, timing, reset cause, versions ([`diag`]); a write of any value to 0x0300 clears the counters | bridge |
+//! | homing | 0x04nn | start/abort, state, result, parameters ([`homing`]) | axis |
+//! | watchdog | 0x05nn | communication watchdog per bus ([`watchdog`]) | bridge |
+//! | axis | 0x06nn | signed speed, position, target, state ([`axis`]) | axis |
+
+/// Why an extension access was not done.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum ExtError {
+    /// No such register, a read-only one written, or a quantity that does
+    /// not fit (Modbus 02).
+    IllegalAddress,
+    /// A value out of range (Modbus 03).
+    IllegalValue,
+    /// Not now: access class, homing not possible, busy (Modbus 04).
+    Refused,
+    /// The value is being read from the chip: ask again after the next tick.
+    NotYet,
+}
+
+/// Block (high byte) numbers.
+pub mod block {
+    pub const CHIP: u8 = 0x01;
+    pub const IOEXT: u8 = 0x02;
+    pub const DIAG: u8 = 0x03;
+    pub const HOMING: u8 = 0x04;
+    pub const WATCHDOG: u8 = 0x05;
+    pub const AXIS: u8 = 0x06;
+}
+
+/// Diagnostics (0x03nn): u32 counters in two registers, high word first.
+pub mod diag {
+    pub const MODBUS_FRAMES: u8 = 0x00;
+    pub const MODBUS_CRC_ERRORS: u8 = 0x02;
+    /// Gaps, bad characters and overruns.
+    pub const MODBUS_FRAMING_ERRORS: u8 = 0x04;
+    pub const MODBUS_EXCEPTIONS: u8 = 0x06;
+    /// Exceptions 01, 02, 03, 04.
+    pub const MODBUS_EXCEPTION_01: u8 = 0x08;
+    pub const I2C_UNKNOWN: u8 = 0x10;
+    pub const I2C_SHORT: u8 = 0x12;
+    pub const USB_REPORTS: u8 = 0x14;
+    pub const USB_BAD: u8 = 0x16;
+    pub const USB_UNKNOWN: u8 = 0x18;
+    pub const CHAIN_ERRORS: u8 = 0x1A;
+    pub const REFUSED: u8 = 0x1C;
+    pub const SAVES: u8 = 0x1E;
+    pub const SAVE_ERRORS: u8 = 0x20;
+    pub const LIMIT_CLAMPS: u8 = 0x22;
+    pub const CHIP_RESETS: u8 = 0x24;
+    pub const WATCHDOG_TRIPS: u8 = 0x26;
+    pub const UPTIME_S: u8 = 0x28;
+    pub const TICK_LAST_US: u8 = 0x2A;
+    pub const TICK_MAX_US: u8 = 0x2C;
+    pub const TICK_OVERRUNS: u8 = 0x2E;
+    /// Chip resets of axis 0..7, one register each.
+    pub const CHIP_RESETS_AXIS0: u8 = 0x30;
+    pub const CHAIN_LENGTH: u8 = 0x40;
+    /// 0 unknown, 1 power-on, 2 reset pin, 3 watchdog, 4 software, 5 brown-out.
+    pub const RESET_CAUSE: u8 = 0x41;
+    /// 0 loaded from the store, 1 store empty, 2 store unreadable.
+    pub const SETTINGS_SOURCE: u8 = 0x42;
+    /// major · 256 + minor.
+    pub const FIRMWARE_VERSION: u8 = 0x43;
+    /// u32.
+    pub const BUILD_ID: u8 = 0x44;
+    /// 0 no save yet, 1 the last save succeeded, 2 it failed, 3 a save is
+    /// pending (accepted, written once every axis rests).
+    pub const LAST_SAVE: u8 = 0x46;
+    /// I2C writes longer than their command (refused), u32.
+    pub const I2C_LONG: u8 = 0x47;
+    /// The last refused request: axis · 256 + reason (1 wrong mode, 2
+    /// asleep, 3 faulted, 4 ignored, 5 unsupported, 6 bad address, 7 busy,
+    /// 8 boot mode); 0 none since the counters were cleared.
+    pub const LAST_REFUSAL: u8 = 0x49;
+    pub const LEN: usize = 0x4A;
+}
+
+/// Homing (0x04nn, per axis).
+pub mod homing {
+    /// Write 1 start, 0 abort; reads the state (0 idle, 1 clearing the
+    /// switch, 2 searching, 3 releasing, 4 done, 5 failed).
+    pub const COMMAND: u8 = 0x00;
+    /// 0 none, 1 switch not found, 2 timeout, 3 switch disabled, 4 aborted,
+    /// 5 fault, 6 not ready (moving, asleep, faulted), 7 switch stuck (a
+    /// clear or release phase travelled the max travel without the switch
+    /// letting go), 8 unbounded (neither max travel nor timeout set).
+    pub const RESULT: u8 = 0x01;
+    /// 1 while position 0 is the switch edge.
+    pub const HOMED: u8 = 0x02;
+    /// 0 reverse, 1 forward.
+    pub const DIRECTION: u8 = 0x03;
+    /// u32 logical steps/s.
+    pub const SEARCH_SPEED: u8 = 0x04;
+    pub const RELEASE_SPEED: u8 = 0x06;
+    /// u32 logical steps per phase (search, clear, release), 0 = no limit.
+    pub const MAX_TRAVEL: u8 = 0x08;
+    /// s for the whole sequence, 0 = no limit (homing refuses to start with
+    /// both 0).
+    pub const TIMEOUT_S: u8 = 0x0A;
+    /// The PoStep60 end-switch settings of the axis (otherwise only USB
+    /// 0x88 / 0xB1 set them): bit 0 enabled, bit 1 normally closed.
+    pub const END_SWITCH: u8 = 0x0B;
+    pub const LEN: usize = 0x0C;
+}
+
+/// Communication watchdog (0x05nn, bridge-wide).
+pub mod watchdog {
+    /// Timeout ms (0 = off) and action (0 hold, 1 soft stop, 2 bridges
+    /// off) of Modbus, I2C, USB: 0x00/0x01, 0x02/0x03, 0x04/0x05.
+    pub const MODBUS_TIMEOUT_MS: u8 = 0x00;
+    /// Trips of Modbus, I2C, USB (read).
+    pub const TRIPS: u8 = 0x06;
+    /// Bit per bus: tripped and not heard from since (read).
+    pub const TRIPPED: u8 = 0x09;
+    pub const LEN: usize = 0x0A;
+}
+
+/// Axis state (0x06nn, per axis, read-only).
+pub mod axis {
+    /// i32 steps/s, signed (0x44 is its magnitude).
+    pub const SPEED: u8 = 0x00;
+    /// i32 logical steps.
+    pub const POSITION: u8 = 0x02;
+    pub const TARGET: u8 = 0x04;
+    /// 0 setup, 1 idle, 2 streaming, 3 stopping, 4 landing, 5 homing.
+    pub const STATE: u8 = 0x06;
+    /// i16 microsteps.
+    pub const FOLLOWING_ERROR: u8 = 0x07;
+    /// The 0x25 fault bits.
+    pub const FAULTS: u8 = 0x08;
+    /// The chip's STATUS as last read.
+    pub const CHIP_STATUS: u8 = 0x09;
+    pub const LEN: usize = 0x0A;
+}
