@@ -786,17 +786,7 @@ impl<B: ChainBus> Bridge<B> {
     ) -> Result<Effect, CommandError> {
         self.heard(bus);
         let r = self.request(k, req);
-        let moves = matches!(
-            req,
-            Request::SetPosition(_)
-                | Request::SetRequestedSpeed(_)
-                | Request::SetMode(_)
-                | Request::SetModeUsb(_)
-                | Request::SetInvert(_)
-                | Request::StepDir { .. }
-                | Request::Trajectory(_)
-        );
-        if moves && r.is_ok() {
+        if req.commands_motion() && r.is_ok() {
             if let Some(m) = self.moved_by.get_mut(k) {
                 *m = 1 << bus as u8;
             }

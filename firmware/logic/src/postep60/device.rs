@@ -150,6 +150,25 @@ pub enum Request {
     SetName([u8; NAME_LEN]),
 }
 
+impl Request {
+    /// The request starts or changes motion: a target, a speed, a
+    /// direction, or a mode or trajectory that runs. The one list of them:
+    /// refused while homing (with a step-mode change), and the bus it came
+    /// on becomes the one the communication watchdog watches for the axis.
+    pub const fn commands_motion(&self) -> bool {
+        matches!(
+            self,
+            Request::SetPosition(_)
+                | Request::SetRequestedSpeed(_)
+                | Request::SetInvert(_)
+                | Request::StepDir { .. }
+                | Request::Trajectory(_)
+                | Request::SetMode(_)
+                | Request::SetModeUsb(_)
+        )
+    }
+}
+
 /// USB 0xB1 Write trajectory data.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -661,19 +680,10 @@ impl Device {
     ) -> Result<Effect, CommandError> {
         let limit = board.current_limit_ma;
         // While homing, motion requests wait (Stop, soft stop, Set zero
-        // and sleep end the homing instead).
-        let moves = matches!(
-            req,
-            Request::SetPosition(_)
-                | Request::SetRequestedSpeed(_)
-                | Request::SetInvert(_)
-                | Request::StepDir { .. }
-                | Request::Trajectory(_)
-                | Request::SetStepMode(_)
-                | Request::SetMode(_)
-                | Request::SetModeUsb(_)
-        );
-        if moves && axis.is_homing() {
+        // and sleep end the homing instead), and so does a step-mode change
+        // (it would stop the search and re-express its position).
+        let disturbs_homing = req.commands_motion() || matches!(req, Request::SetStepMode(_));
+        if disturbs_homing && axis.is_homing() {
             return self.refuse(CommandError::Busy);
         }
         match req {
