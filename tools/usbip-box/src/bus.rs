@@ -1,0 +1,657 @@
+//! A `usb_device` bus whose host is a USB/IP client: URBs in, packets to
+//! and from the device's endpoints, completions out.
+//!
+//! [`UsbIpBus`] implements `usb_device::bus::UsbBus` (what a device's
+//! hardware driver implements, e.g. synopsys-usb-otg on the STM32F405), so
+//! `UsbDevice` and its classes run on it unchanged. [`Port`] is the network
+//! side's handle on the same state: it hands URBs in
+//! ([`Port::submit`], [`Port::unlink`]) and takes the replies out
+//! ([`Port::take_replies`]). Both share one [`Core`] behind a mutex; the
+//! server and the device are polled by one thread.
+//!
+//! # What it guarantees
+//!
+//! * **Control transfers run in their three stages, in order.** A control
+//!   URB is one transfer: its SETUP packet goes to EP0 OUT (`ep_setup`), an
+//!   OUT data stage in packets of the endpoint's size, then the URB waits
+//!   for the device's zero-length status IN and completes only when the
+//!   device has written it; an IN transfer collects the device's packets
+//!   until a short one or the URB's length, then the host's zero-length
+//!   status OUT is handed to the device and the URB completes once the
+//!   device has read it. A packet the device writes to EP0 outside a data or
+//!   status stage is dropped (counted in [`Core::stray_ep0_writes`]): it can
+//!   never become the answer to the next request. One control transfer at a
+//!   time; the next starts at the next poll.
+//! * **A STALL answers at once**: the device stalling EP0 during a
+//!   transfer completes its URB with `-EPIPE` (−32); a SETUP clears EP0's
+//!   stall, as on the wire. A stalled interrupt endpoint fails its pending
+//!   and new URBs with `-EPIPE` until the host clears the halt.
+//! * **Unlink**: CMD_UNLINK of a URB that has not completed removes it (no
+//!   RET_SUBMIT is ever sent for it) and answers `-ECONNRESET` (−104); of
+//!   one that already completed, status 0. An IN packet the device had
+//!   written stays in its endpoint for the next URB, as in a FIFO.
+//! * **Interrupt endpoints**: an OUT URB is delivered in packets of the
+//!   endpoint's size and completes when the device has read the last; an
+//!   IN URB takes the device's packets until a short one or its length. A
+//!   written IN packet with no URB waiting stays in the endpoint (the next
+//!   write is `WouldBlock`), as a real endpoint NAKs until the host polls.
+//! * **Speed**: full speed, EP0 64 bytes; the device's address is kept but
+//!   has no effect (the USB/IP client, vhci-hcd, handles SET_ADDRESS
+//!   itself and never sends it).
+//! * **Link**: [`Port::attach`] makes the next poll a bus reset;
+//!   [`Port::detach`] (the client went away) drops every URB and makes the
+//!   next poll a suspend (a self-powered device's "disconnected").
+//!
+//! Isochronous URBs are refused (`-EINVAL`): no class here has such an
+//! endpoint.
+
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex, MutexGuard};
+
+use usb_device::bus::PollResult;
+use usb_device::endpoint::{EndpointAddress, EndpointType};
+use usb_device::{UsbDirection, UsbError};
+
+use crate::protocol::{status, Reply, Submit, Unlink};
+
+/// Endpoint numbers 0..=15.
+pub const ENDPOINTS: usize = 16;
+
+/// A hub-class request to a port: SET_FEATURE(PORT_RESET). The kernel's
+/// USB/IP server takes this as "reset the device"; so does this bus.
+const PORT_RESET_SETUP: (u8, u8, u16) = (0x23, 0x03, 4);
+
+#[derive(Clone, Copy, Debug)]
+struct EpConfig {
+    ep_type: EndpointType,
+    max_packet: usize,
+}
+
+/// A control transfer's stage.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Stage {
+    /// The SETUP packet waits in EP0 OUT.
+    Setup,
+    /// OUT data waits in EP0 OUT from `pos`.
+    DataOut,
+    /// The device writes IN data.
+    DataIn,
+    /// The host's zero-length status OUT waits in EP0 OUT.
+    StatusOut,
+    /// The host waits for the device's zero-length status IN.
+    StatusIn,
+}
+
+#[derive(Debug)]
+struct Control {
+    urb: Submit,
+    stage: Stage,
+    pos: usize,
+    data_in: Vec<u8>,
+}
+
+impl Control {
+    fn length(&self) -> usize {
+        usize::from(u16::from_le_bytes([self.urb.setup[6], self.urb.setup[7]]))
+    }
+    fn setup_is_in(&self) -> bool {
+        self.urb.setup[0] & 0x80 != 0
+    }
+}
+
+/// A non-control URB in progress.
+#[derive(Debug)]
+struct Transfer {
+    urb: Submit,
+    /// OUT: bytes delivered so far; IN: bytes received (in `data_in`).
+    pos: usize,
+    data_in: Vec<u8>,
+}
+
+/// The state both sides share.
+#[derive(Debug, Default)]
+pub struct Core {
+    ep_in: [Option<EpConfig>; ENDPOINTS],
+    ep_out: [Option<EpConfig>; ENDPOINTS],
+    stalled_in: u16,
+    stalled_out: u16,
+    /// Packets the device wrote that no URB has taken yet.
+    in_packet: [Option<Vec<u8>>; ENDPOINTS],
+    /// IN endpoints whose packet a URB took since the last poll.
+    in_complete: u16,
+    control: Option<Control>,
+    control_queue: VecDeque<Submit>,
+    out_queue: [VecDeque<Transfer>; ENDPOINTS],
+    in_queue: [VecDeque<Transfer>; ENDPOINTS],
+    replies: VecDeque<Reply>,
+    reset_pending: bool,
+    suspend_pending: bool,
+    attached: bool,
+    address: u8,
+    /// EP0 writes outside a data or status stage (dropped).
+    pub stray_ep0_writes: u32,
+    /// Bus resets the device has been given.
+    pub resets: u32,
+}
+
+impl Core {
+    fn complete(&mut self, seqnum: u32, status: i32, actual_length: usize, data: Vec<u8>) {
+        self.replies.push_back(Reply::Submit {
+            seqnum,
+            status,
+            actual_length: u32::try_from(actual_length).unwrap_or(u32::MAX),
+            data,
+        });
+    }
+
+    fn fail(&mut self, urb: &Submit, status: i32) {
+        self.complete(urb.seqnum, status, 0, Vec::new());
+    }
+
+    fn finish_control(&mut self, status: i32) {
+        if let Some(c) = self.control.take() {
+            if status != status::OK {
+                self.fail(&c.urb, status);
+            } else if c.urb.is_in() {
+                let mut data = c.data_in;
+                data.truncate(c.urb.transfer_buffer_length as usize);
+                let n = data.len();
+                self.complete(c.urb.seqnum, status::OK, n, data);
+            } else {
+                let n = c.urb.data.len();
+                self.complete(c.urb.seqnum, status::OK, n, Vec::new());
+            }
+        }
+    }
+
+    fn ep0_max(&self) -> usize {
+        self.ep_in[0].map_or(64, |c| c.max_packet)
+    }
+
+    /// Start the next control transfer if none runs: its SETUP into EP0.
+    fn start_control(&mut self) {
+        if self.control.is_some() {
+            return;
+        }
+        let Some(urb) = self.control_queue.pop_front() else {
+            return;
+        };
+        // A SETUP clears a stall of EP0 and flushes what EP0 IN held.
+        self.stalled_in &= !1;
+        self.stalled_out &= !1;
+        self.in_packet[0] = None;
+        self.control = Some(Control {
+            urb,
+            stage: Stage::Setup,
+            pos: 0,
+            data_in: Vec::new(),
+        });
+    }
+
+    /// An IN endpoint's waiting packet into its first URB.
+    fn match_in(&mut self, k: usize) {
+        let Some(packet) = self.in_packet[k].take() else {
+            return;
+        };
+        let max = self.ep_in[k].map_or(64, |c| c.max_packet);
+        let Some(t) = self.in_queue[k].front_mut() else {
+            self.in_packet[k] = Some(packet);
+            return;
+        };
+        let room = (t.urb.transfer_buffer_length as usize).saturating_sub(t.data_in.len());
+        if packet.len() > room {
+            // Babble: more than the host asked for.
+            if let Some(t) = self.in_queue[k].pop_front() {
+                self.fail(&t.urb, status::PROTOCOL);
+            }
+            self.in_complete |= 1 << k;
+            return;
+        }
+        t.data_in.extend_from_slice(&packet);
+        t.pos = t.data_in.len();
+        let done = packet.len() < max || t.pos >= t.urb.transfer_buffer_length as usize;
+        self.in_complete |= 1 << k;
+        if done {
+            if let Some(t) = self.in_queue[k].pop_front() {
+                let n = t.data_in.len();
+                self.complete(t.urb.seqnum, status::OK, n, t.data_in);
+            }
+        }
+    }
+
+    fn submit(&mut self, urb: Submit) {
+        if !self.attached {
+            return;
+        }
+        let k = (urb.ep & 0x0F) as usize;
+        if urb.is_iso() {
+            self.fail(&urb, status::INVALID);
+            return;
+        }
+        if k == 0 {
+            let s = urb.setup;
+            let request = (s[0], s[1], u16::from_le_bytes([s[2], s[3]]));
+            if request == PORT_RESET_SETUP {
+                self.reset_pending = true;
+                self.complete(urb.seqnum, status::OK, 0, Vec::new());
+                return;
+            }
+            self.control_queue.push_back(urb);
+            return;
+        }
+        let t = Transfer {
+            urb,
+            pos: 0,
+            data_in: Vec::new(),
+        };
+        if t.urb.is_in() {
+            if self.ep_in[k].is_none() || self.stalled_in & (1 << k) != 0 {
+                self.fail(&t.urb, status::STALL);
+                return;
+            }
+            self.in_queue[k].push_back(t);
+            self.match_in(k);
+        } else {
+            if self.ep_out[k].is_none() || self.stalled_out & (1 << k) != 0 {
+                self.fail(&t.urb, status::STALL);
+                return;
+            }
+            self.out_queue[k].push_back(t);
+        }
+    }
+
+    fn unlink(&mut self, u: Unlink) {
+        let target = u.unlink_seqnum;
+        let mut found = false;
+        if self
+            .control
+            .as_ref()
+            .is_some_and(|c| c.urb.seqnum == target)
+        {
+            self.control = None;
+            self.in_packet[0] = None;
+            found = true;
+        }
+        let before = self.control_queue.len();
+        self.control_queue.retain(|s| s.seqnum != target);
+        found |= self.control_queue.len() != before;
+        for q in self.out_queue.iter_mut().chain(self.in_queue.iter_mut()) {
+            let before = q.len();
+            q.retain(|t| t.urb.seqnum != target);
+            found |= q.len() != before;
+        }
+        self.replies.push_back(Reply::Unlink {
+            seqnum: u.seqnum,
+            status: if found { status::UNLINKED } else { status::OK },
+        });
+    }
+
+    fn drop_urbs(&mut self) {
+        self.control = None;
+        self.control_queue.clear();
+        for q in self.out_queue.iter_mut().chain(self.in_queue.iter_mut()) {
+            q.clear();
+        }
+        self.replies.clear();
+    }
+
+    fn write(&mut self, ep: EndpointAddress, buf: &[u8]) -> usb_device::Result<usize> {
+        let k = ep.index();
+        if ep.direction() != UsbDirection::In || k >= ENDPOINTS {
+            return Err(UsbError::InvalidEndpoint);
+        }
+        let Some(cfg) = self.ep_in[k] else {
+            return Err(UsbError::InvalidEndpoint);
+        };
+        if buf.len() > cfg.max_packet {
+            return Err(UsbError::BufferOverflow);
+        }
+        if k == 0 {
+            return Ok(self.write_ep0(buf));
+        }
+        if self.in_packet[k].is_some() {
+            return Err(UsbError::WouldBlock);
+        }
+        self.in_packet[k] = Some(buf.to_vec());
+        self.match_in(k);
+        Ok(buf.len())
+    }
+
+    fn write_ep0(&mut self, buf: &[u8]) -> usize {
+        let max = self.ep0_max();
+        let Some(c) = self.control.as_mut() else {
+            self.stray_ep0_writes += 1;
+            return buf.len();
+        };
+        match c.stage {
+            Stage::DataIn => {
+                c.data_in.extend_from_slice(buf);
+                if buf.len() < max || c.data_in.len() >= c.length() {
+                    c.stage = Stage::StatusOut;
+                }
+                self.in_complete |= 1;
+            }
+            Stage::StatusIn if buf.is_empty() => {
+                self.in_complete |= 1;
+                self.finish_control(status::OK);
+            }
+            Stage::StatusIn => {
+                // Data where the status belongs.
+                self.in_complete |= 1;
+                self.finish_control(status::PROTOCOL);
+            }
+            Stage::Setup | Stage::DataOut | Stage::StatusOut => {
+                self.stray_ep0_writes += 1;
+            }
+        }
+        buf.len()
+    }
+
+    fn read(&mut self, ep: EndpointAddress, buf: &mut [u8]) -> usb_device::Result<usize> {
+        let k = ep.index();
+        if ep.direction() != UsbDirection::Out || k >= ENDPOINTS || self.ep_out[k].is_none() {
+            return Err(UsbError::InvalidEndpoint);
+        }
+        if k == 0 {
+            return self.read_ep0(buf);
+        }
+        let max = self.ep_out[k].map_or(64, |c| c.max_packet);
+        let Some(t) = self.out_queue[k].front_mut() else {
+            return Err(UsbError::WouldBlock);
+        };
+        let n = (t.urb.data.len() - t.pos).min(max);
+        let dst = buf.get_mut(..n).ok_or(UsbError::BufferOverflow)?;
+        dst.copy_from_slice(t.urb.data.get(t.pos..t.pos + n).unwrap_or(&[]));
+        t.pos += n;
+        if t.pos >= t.urb.data.len() {
+            if let Some(t) = self.out_queue[k].pop_front() {
+                let len = t.urb.data.len();
+                self.complete(t.urb.seqnum, status::OK, len, Vec::new());
+            }
+        }
+        Ok(n)
+    }
+
+    fn read_ep0(&mut self, buf: &mut [u8]) -> usb_device::Result<usize> {
+        let max = self.ep0_max();
+        let Some(c) = self.control.as_mut() else {
+            return Err(UsbError::WouldBlock);
+        };
+        match c.stage {
+            Stage::Setup => {
+                let dst = buf.get_mut(..8).ok_or(UsbError::BufferOverflow)?;
+                dst.copy_from_slice(&c.urb.setup);
+                c.stage = if c.setup_is_in() {
+                    Stage::DataIn
+                } else if c.length() > 0 && !c.urb.data.is_empty() {
+                    Stage::DataOut
+                } else {
+                    Stage::StatusIn
+                };
+                Ok(8)
+            }
+            Stage::DataOut => {
+                let n = (c.urb.data.len() - c.pos).min(max);
+                let dst = buf.get_mut(..n).ok_or(UsbError::BufferOverflow)?;
+                dst.copy_from_slice(c.urb.data.get(c.pos..c.pos + n).unwrap_or(&[]));
+                c.pos += n;
+                if c.pos >= c.urb.data.len() {
+                    c.stage = Stage::StatusIn;
+                }
+                Ok(n)
+            }
+            Stage::StatusOut => {
+                self.finish_control(status::OK);
+                Ok(0)
+            }
+            Stage::DataIn | Stage::StatusIn => Err(UsbError::WouldBlock),
+        }
+    }
+
+    fn set_stalled(&mut self, ep: EndpointAddress, stalled: bool) {
+        let k = ep.index();
+        if k >= ENDPOINTS {
+            return;
+        }
+        let bit = 1u16 << k;
+        let in_dir = ep.direction() == UsbDirection::In;
+        let flags = if in_dir {
+            &mut self.stalled_in
+        } else {
+            &mut self.stalled_out
+        };
+        if !stalled {
+            *flags &= !bit;
+            return;
+        }
+        *flags |= bit;
+        if k == 0 {
+            if self.control.is_some() {
+                self.finish_control(status::STALL);
+            }
+            return;
+        }
+        let queue = if in_dir {
+            std::mem::take(&mut self.in_queue[k])
+        } else {
+            std::mem::take(&mut self.out_queue[k])
+        };
+        for t in queue {
+            self.fail(&t.urb, status::STALL);
+        }
+    }
+
+    fn poll(&mut self) -> PollResult {
+        if self.reset_pending {
+            self.reset_pending = false;
+            self.resets += 1;
+            return PollResult::Reset;
+        }
+        if self.suspend_pending {
+            self.suspend_pending = false;
+            return PollResult::Suspend;
+        }
+        if !self.attached {
+            return PollResult::None;
+        }
+        self.start_control();
+        let mut ep_setup = 0u16;
+        let mut ep_out = 0u16;
+        if let Some(c) = &self.control {
+            match c.stage {
+                Stage::Setup => ep_setup |= 1,
+                Stage::DataOut | Stage::StatusOut => ep_out |= 1,
+                Stage::DataIn | Stage::StatusIn => {}
+            }
+        }
+        for (k, q) in self.out_queue.iter().enumerate().skip(1) {
+            if !q.is_empty() {
+                ep_out |= 1 << k;
+            }
+        }
+        let ep_in_complete = std::mem::take(&mut self.in_complete);
+        if ep_setup | ep_out | ep_in_complete == 0 {
+            PollResult::None
+        } else {
+            PollResult::Data {
+                ep_out,
+                ep_in_complete,
+                ep_setup,
+            }
+        }
+    }
+
+    fn reset_endpoints(&mut self) {
+        self.stalled_in = 0;
+        self.stalled_out = 0;
+        self.in_packet = Default::default();
+        self.in_complete = 0;
+        self.address = 0;
+    }
+}
+
+/// The network side's handle.
+#[derive(Clone, Debug)]
+pub struct Port(Arc<Mutex<Core>>);
+
+/// The `UsbBus` the device runs on.
+#[derive(Debug)]
+pub struct UsbIpBus(Arc<Mutex<Core>>);
+
+/// A bus and the port to its host.
+pub fn new() -> (UsbIpBus, Port) {
+    let core = Arc::new(Mutex::new(Core::default()));
+    (UsbIpBus(core.clone()), Port(core))
+}
+
+fn lock(core: &Mutex<Core>) -> MutexGuard<'_, Core> {
+    // One thread uses both sides; a poisoned lock only means a panic
+    // elsewhere already ended the test or program.
+    core.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+impl Port {
+    /// A client imported the device: the next poll is a bus reset.
+    pub fn attach(&self) {
+        let mut c = lock(&self.0);
+        c.drop_urbs();
+        c.attached = true;
+        c.reset_pending = true;
+        c.suspend_pending = false;
+    }
+
+    /// The client went away: every URB is dropped, the device is suspended.
+    pub fn detach(&self) {
+        let mut c = lock(&self.0);
+        c.drop_urbs();
+        c.attached = false;
+        c.reset_pending = false;
+        c.suspend_pending = true;
+    }
+
+    pub fn is_attached(&self) -> bool {
+        lock(&self.0).attached
+    }
+
+    pub fn submit(&self, urb: Submit) {
+        lock(&self.0).submit(urb);
+    }
+
+    pub fn unlink(&self, u: Unlink) {
+        lock(&self.0).unlink(u);
+    }
+
+    /// Replies in the order the URBs completed.
+    pub fn take_replies(&self) -> Vec<Reply> {
+        lock(&self.0).replies.drain(..).collect()
+    }
+
+    /// EP0 writes the bus dropped (see the module doc).
+    pub fn stray_ep0_writes(&self) -> u32 {
+        lock(&self.0).stray_ep0_writes
+    }
+
+    /// Bus resets so far.
+    pub fn resets(&self) -> u32 {
+        lock(&self.0).resets
+    }
+
+    /// URBs neither completed nor unlinked.
+    pub fn pending_urbs(&self) -> usize {
+        let c = lock(&self.0);
+        usize::from(c.control.is_some())
+            + c.control_queue.len()
+            + c.out_queue.iter().map(VecDeque::len).sum::<usize>()
+            + c.in_queue.iter().map(VecDeque::len).sum::<usize>()
+    }
+}
+
+impl usb_device::bus::UsbBus for UsbIpBus {
+    fn alloc_ep(
+        &mut self,
+        ep_dir: UsbDirection,
+        ep_addr: Option<EndpointAddress>,
+        ep_type: EndpointType,
+        max_packet_size: u16,
+        _interval: u8,
+    ) -> usb_device::Result<EndpointAddress> {
+        let mut c = lock(&self.0);
+        let table = match ep_dir {
+            UsbDirection::In => &mut c.ep_in,
+            UsbDirection::Out => &mut c.ep_out,
+        };
+        let k = match ep_addr {
+            Some(a) => {
+                let k = a.index();
+                if k >= ENDPOINTS || a.direction() != ep_dir || table[k].is_some() {
+                    return Err(UsbError::InvalidEndpoint);
+                }
+                k
+            }
+            None => (1..ENDPOINTS)
+                .find(|k| table[*k].is_none())
+                .ok_or(UsbError::EndpointOverflow)?,
+        };
+        if max_packet_size > 64 || (k == 0 && ep_type != EndpointType::Control) {
+            // Full speed: 64 bytes at most on control and interrupt endpoints.
+            return Err(UsbError::EndpointMemoryOverflow);
+        }
+        table[k] = Some(EpConfig {
+            ep_type,
+            max_packet: usize::from(max_packet_size),
+        });
+        Ok(EndpointAddress::from_parts(k, ep_dir))
+    }
+
+    fn enable(&mut self) {}
+
+    fn reset(&self) {
+        lock(&self.0).reset_endpoints();
+    }
+
+    fn set_device_address(&self, addr: u8) {
+        lock(&self.0).address = addr;
+    }
+
+    fn write(&self, ep_addr: EndpointAddress, buf: &[u8]) -> usb_device::Result<usize> {
+        lock(&self.0).write(ep_addr, buf)
+    }
+
+    fn read(&self, ep_addr: EndpointAddress, buf: &mut [u8]) -> usb_device::Result<usize> {
+        lock(&self.0).read(ep_addr, buf)
+    }
+
+    fn set_stalled(&self, ep_addr: EndpointAddress, stalled: bool) {
+        lock(&self.0).set_stalled(ep_addr, stalled);
+    }
+
+    fn is_stalled(&self, ep_addr: EndpointAddress) -> bool {
+        let c = lock(&self.0);
+        let k = ep_addr.index();
+        let flags = match ep_addr.direction() {
+            UsbDirection::In => c.stalled_in,
+            UsbDirection::Out => c.stalled_out,
+        };
+        k < ENDPOINTS && flags & (1 << k) != 0
+    }
+
+    fn suspend(&self) {}
+
+    fn resume(&self) {}
+
+    fn poll(&self) -> PollResult {
+        lock(&self.0).poll()
+    }
+}
+
+impl UsbIpBus {
+    /// The endpoint type allocated at `ep`, if any (tests).
+    pub fn endpoint_type(&self, ep: EndpointAddress) -> Option<EndpointType> {
+        let c = lock(&self.0);
+        let table = match ep.direction() {
+            UsbDirection::In => &c.ep_in,
+            UsbDirection::Out => &c.ep_out,
+        };
+        table.get(ep.index()).copied().flatten().map(|e| e.ep_type)
+    }
+}
