@@ -108,6 +108,46 @@ struct Transfer {
     data_in: Vec<u8>,
 }
 
+/// What [`Port::take_trace`] reports when tracing is on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Trace {
+    /// A control transfer ended: its SETUP, status, and the bytes moved.
+    Control {
+        setup: [u8; 8],
+        status: i32,
+        length: usize,
+    },
+    /// CMD_UNLINK of `seqnum`: whether the URB was still pending.
+    Unlink { seqnum: u32, pending: bool },
+}
+
+impl core::fmt::Display for Trace {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        match self {
+            Trace::Control {
+                setup,
+                status,
+                length,
+            } => {
+                write!(f, "control")?;
+                for b in setup {
+                    write!(f, " {b:02x}")?;
+                }
+                write!(f, ": status {status}, {length} bytes")
+            }
+            Trace::Unlink { seqnum, pending } => write!(
+                f,
+                "unlink of URB {seqnum}: {}",
+                if *pending {
+                    "cancelled"
+                } else {
+                    "already done"
+                }
+            ),
+        }
+    }
+}
+
 /// The state both sides share.
 #[derive(Debug, Default)]
 pub struct Core {
@@ -132,6 +172,8 @@ pub struct Core {
     pub stray_ep0_writes: u32,
     /// Bus resets the device has been given.
     pub resets: u32,
+    tracing: bool,
+    trace: Vec<Trace>,
 }
 
 impl Core {
@@ -150,6 +192,18 @@ impl Core {
 
     fn finish_control(&mut self, status: i32) {
         if let Some(c) = self.control.take() {
+            if self.tracing {
+                let length = if c.urb.is_in() {
+                    c.data_in.len().min(c.urb.transfer_buffer_length as usize)
+                } else {
+                    c.urb.data.len()
+                };
+                self.trace.push(Trace::Control {
+                    setup: c.urb.setup,
+                    status,
+                    length: if status == status::OK { length } else { 0 },
+                });
+            }
             if status != status::OK {
                 self.fail(&c.urb, status);
             } else if c.urb.is_in() {
@@ -279,6 +333,12 @@ impl Core {
             let before = q.len();
             q.retain(|t| t.urb.seqnum != target);
             found |= q.len() != before;
+        }
+        if self.tracing {
+            self.trace.push(Trace::Unlink {
+                seqnum: target,
+                pending: found,
+            });
         }
         self.replies.push_back(Reply::Unlink {
             seqnum: u.seqnum,
@@ -549,6 +609,16 @@ impl Port {
     /// EP0 writes the bus dropped (see the module doc).
     pub fn stray_ep0_writes(&self) -> u32 {
         lock(&self.0).stray_ep0_writes
+    }
+
+    /// Record control transfers and unlinks for [`Port::take_trace`].
+    pub fn set_tracing(&self, on: bool) {
+        lock(&self.0).tracing = on;
+    }
+
+    /// What happened since the last call (tracing on).
+    pub fn take_trace(&self) -> Vec<Trace> {
+        std::mem::take(&mut lock(&self.0).trace)
     }
 
     /// Bus resets so far.

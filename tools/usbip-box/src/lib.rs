@@ -17,3 +17,4 @@ pub mod bus;
 pub mod postep_box;
 pub mod protocol;
 pub mod server;
+pub mod vhci;

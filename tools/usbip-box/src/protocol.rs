@@ -325,6 +325,29 @@ impl DeviceInfo {
     }
 }
 
+/// Client side: the devices of an OP_REP_DEVLIST (`None` while it is
+/// incomplete or when it is not one).
+pub fn decode_devlist(b: &[u8]) -> Option<Vec<DeviceInfo>> {
+    if get16(b, 0)? != VERSION || get16(b, 2)? != OP_REP_DEVLIST || get32(b, 4)? != 0 {
+        return None;
+    }
+    let n = get32(b, 8)?;
+    let mut at = OP_HEADER_LEN + 4;
+    let mut devices = Vec::new();
+    for _ in 0..n.min(64) {
+        let mut d = DeviceInfo::decode_record(b.get(at..at + DEVICE_RECORD_LEN)?)?;
+        let interfaces = usize::from(*b.get(at + DEVICE_RECORD_LEN - 1)?);
+        at += DEVICE_RECORD_LEN;
+        for _ in 0..interfaces {
+            let i = b.get(at..at + 4)?;
+            d.interfaces.push((*i.first()?, *i.get(1)?, *i.get(2)?));
+            at += 4;
+        }
+        devices.push(d);
+    }
+    Some(devices)
+}
+
 /// Client side (tests, the kernel check's attach): OP_REQ_DEVLIST.
 pub fn encode_req_devlist() -> Vec<u8> {
     let mut b = Vec::new();
@@ -805,6 +828,8 @@ mod tests {
         assert_eq!(&rec[300..306], &[0x1D, 0xC3, 0x06, 0x41, 0x01, 0x00]);
         assert_eq!(&rec[306..312], &[0, 0, 0, 1, 1, 1]);
         assert_eq!(&list[324..328], &[3, 0, 0, 0]);
+        assert_eq!(decode_devlist(&list), Some(vec![i.clone()]));
+        assert_eq!(decode_devlist(&list[..327]), None);
 
         let ok = DeviceInfo::encode_import(Some(&i));
         assert_eq!(ok.len(), 8 + 312);

@@ -1,7 +1,8 @@
-//! `usbip-box [--listen ADDR] [--axes N] [--quiet]`: the bridge's USB
+//! `usbip-box [--listen ADDR] [--axes N] [--trace] [--quiet]`: the bridge's USB
 //! device (PoStep60 HID class, bridge, simulated chips) exported over
 //! USB/IP, bus id "1-1", on ADDR (127.0.0.1:3240, the usbip port), its
-//! virtual clock following real time. Import it with vhci-hcd (the
+//! virtual clock following real time. `--trace` logs every control
+//! transfer (SETUP, status, length) and unlink. Import it with vhci-hcd (the
 //! `usbip-kernel-check` binary, or `usbip attach -r 127.0.0.1 -b 1-1`).
 
 use std::time::{Duration, Instant};
@@ -18,6 +19,7 @@ const LAG_WARN_MS: u64 = 100;
 struct Args {
     listen: String,
     axes: usize,
+    trace: bool,
     quiet: bool,
 }
 
@@ -25,6 +27,7 @@ fn args() -> Result<Args, String> {
     let mut a = Args {
         listen: "127.0.0.1:3240".into(),
         axes: 4,
+        trace: false,
         quiet: false,
     };
     let mut it = std::env::args().skip(1);
@@ -38,9 +41,10 @@ fn args() -> Result<Args, String> {
                     .filter(|n| (1..=8).contains(n))
                     .ok_or("--axes needs 1..=8")?
             }
+            "--trace" => a.trace = true,
             "--quiet" => a.quiet = true,
             "-h" | "--help" => {
-                println!("usbip-box [--listen 127.0.0.1:3240] [--axes 4] [--quiet]");
+                println!("usbip-box [--listen 127.0.0.1:3240] [--axes 4] [--trace] [--quiet]");
                 std::process::exit(0);
             }
             other => return Err(format!("unknown argument {other}")),
@@ -82,6 +86,7 @@ fn main() {
     let mut warned_at = 0u64;
     loop {
         let port = pbox.port().clone();
+        port.set_tracing(a.trace);
         for e in server.poll(&port) {
             match e {
                 Event::Listed => log("device list sent".into()),
@@ -102,6 +107,9 @@ fn main() {
                 pbox.runs
             ));
             continue;
+        }
+        for t in port.take_trace() {
+            log(format!("{t}"));
         }
         if let Some(Event::Detached(why)) = server.flush(pbox.port()) {
             log(format!("detached: {why}"));
