@@ -725,3 +725,266 @@ impl UsbIpBus {
         table.get(ep.index()).copied().flatten().map(|e| e.ep_type)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::protocol::{DIR_IN, DIR_OUT};
+    use usb_device::bus::UsbBus;
+
+    const EP0_OUT: u8 = 0x00;
+    const EP0_IN: u8 = 0x80;
+    const EP1_OUT: u8 = 0x01;
+    const EP1_IN: u8 = 0x81;
+    const GET_DEVICE: [u8; 8] = [0x80, 0x06, 0x00, 0x01, 0x00, 0x00, 0x12, 0x00];
+
+    fn ep(a: u8) -> EndpointAddress {
+        EndpointAddress::from(a)
+    }
+
+    /// A bus with EP0 and EP1 in both directions, attached and reset.
+    fn bus() -> (UsbIpBus, Port) {
+        let (mut b, p) = new();
+        for (dir, a, t) in [
+            (UsbDirection::Out, EP0_OUT, EndpointType::Control),
+            (UsbDirection::In, EP0_IN, EndpointType::Control),
+            (UsbDirection::In, EP1_IN, EndpointType::Interrupt),
+            (UsbDirection::Out, EP1_OUT, EndpointType::Interrupt),
+        ] {
+            b.alloc_ep(dir, Some(ep(a)), t, 64, 10).unwrap();
+        }
+        p.attach();
+        assert!(matches!(b.poll(), PollResult::Reset));
+        b.reset();
+        (b, p)
+    }
+
+    fn urb(seqnum: u32, ep: u32, direction: u32, len: u32, setup: [u8; 8], data: &[u8]) -> Submit {
+        Submit {
+            seqnum,
+            devid: 0x0001_0002,
+            direction,
+            ep,
+            transfer_flags: 0,
+            transfer_buffer_length: len,
+            start_frame: 0,
+            number_of_packets: 0,
+            interval: 0,
+            setup,
+            data: data.to_vec(),
+        }
+    }
+
+    fn status_of(r: &Reply) -> (u32, i32) {
+        match r {
+            Reply::Submit { seqnum, status, .. } => (*seqnum, *status),
+            Reply::Unlink { seqnum, status } => (*seqnum, *status),
+        }
+    }
+
+    /// The device's side of a GET_DESCRIPTOR(device): SETUP, data, status.
+    fn serve_get_device(b: &UsbIpBus) {
+        assert!(matches!(b.poll(), PollResult::Data { ep_setup: 1, .. }));
+        let mut buf = [0u8; 64];
+        assert_eq!(b.read(ep(EP0_OUT), &mut buf), Ok(8));
+        assert_eq!(b.write(ep(EP0_IN), &[0x12; 18]), Ok(18));
+        assert!(matches!(
+            b.poll(),
+            PollResult::Data {
+                ep_out: 1,
+                ep_in_complete: 1,
+                ..
+            }
+        ));
+        assert_eq!(
+            b.read(ep(EP0_OUT), &mut buf),
+            Ok(0),
+            "the host's status ZLP"
+        );
+    }
+
+    #[test]
+    fn an_ep0_write_outside_a_transfer_is_dropped_never_the_next_answer() {
+        let (b, p) = bus();
+        assert_eq!(b.write(ep(EP0_IN), &[]), Ok(0));
+        assert_eq!(p.stray_ep0_writes(), 1);
+        p.submit(urb(1, 0, DIR_IN, 18, GET_DEVICE, &[]));
+        serve_get_device(&b);
+        let r = p.take_replies();
+        assert_eq!(
+            r,
+            vec![Reply::Submit {
+                seqnum: 1,
+                status: 0,
+                actual_length: 18,
+                data: vec![0x12; 18]
+            }]
+        );
+    }
+
+    #[test]
+    fn a_no_data_out_waits_for_the_device_s_status_zlp() {
+        let (b, p) = bus();
+        p.submit(urb(1, 0, DIR_OUT, 0, [0, 0x09, 1, 0, 0, 0, 0, 0], &[]));
+        assert!(matches!(b.poll(), PollResult::Data { ep_setup: 1, .. }));
+        let mut buf = [0u8; 64];
+        assert_eq!(b.read(ep(EP0_OUT), &mut buf), Ok(8));
+        assert!(p.take_replies().is_empty(), "not before the status stage");
+        assert_eq!(b.write(ep(EP0_IN), &[]), Ok(0));
+        assert_eq!(
+            p.take_replies().iter().map(status_of).collect::<Vec<_>>(),
+            [(1, 0)]
+        );
+        assert_eq!(p.stray_ep0_writes(), 0);
+    }
+
+    #[test]
+    fn an_ep0_stall_fails_the_transfer_with_epipe_and_the_next_setup_clears_it() {
+        let (b, p) = bus();
+        p.submit(urb(1, 0, DIR_IN, 18, GET_DEVICE, &[]));
+        p.submit(urb(2, 0, DIR_IN, 18, GET_DEVICE, &[]));
+        b.poll();
+        let mut buf = [0u8; 64];
+        b.read(ep(EP0_OUT), &mut buf).unwrap();
+        // usb-device stalls both halves of EP0.
+        b.set_stalled(ep(EP0_OUT), true);
+        b.set_stalled(ep(EP0_IN), true);
+        assert_eq!(
+            p.take_replies().iter().map(status_of).collect::<Vec<_>>(),
+            [(1, status::STALL)],
+            "the second URB is not hit by the second stall"
+        );
+        serve_get_device(&b);
+        assert!(!b.is_stalled(ep(EP0_IN)));
+        assert_eq!(
+            p.take_replies().iter().map(status_of).collect::<Vec<_>>(),
+            [(2, 0)]
+        );
+    }
+
+    #[test]
+    fn a_stalled_interrupt_endpoint_fails_its_urbs_until_the_halt_is_cleared() {
+        let (b, p) = bus();
+        p.submit(urb(1, 1, DIR_IN, 64, [0; 8], &[]));
+        b.set_stalled(ep(EP1_IN), true);
+        p.submit(urb(2, 1, DIR_IN, 64, [0; 8], &[]));
+        b.set_stalled(ep(EP1_IN), false);
+        p.submit(urb(3, 1, DIR_IN, 64, [0; 8], &[]));
+        assert_eq!(
+            p.take_replies().iter().map(status_of).collect::<Vec<_>>(),
+            [(1, status::STALL), (2, status::STALL)]
+        );
+        assert_eq!(b.write(ep(EP1_IN), &[7; 64]), Ok(64));
+        assert_eq!(
+            p.take_replies().iter().map(status_of).collect::<Vec<_>>(),
+            [(3, 0)]
+        );
+        assert!(matches!(
+            b.poll(),
+            PollResult::Data {
+                ep_in_complete: 2,
+                ..
+            }
+        ));
+    }
+
+    #[test]
+    fn an_in_packet_waits_in_its_endpoint_and_one_beyond_the_urb_is_babble() {
+        let (b, p) = bus();
+        assert_eq!(b.write(ep(EP1_IN), &[1; 64]), Ok(64));
+        assert_eq!(b.write(ep(EP1_IN), &[2; 64]), Err(UsbError::WouldBlock));
+        p.submit(urb(1, 1, DIR_IN, 64, [0; 8], &[]));
+        assert!(matches!(&p.take_replies()[..], [Reply::Submit { data, .. }] if data == &[1; 64]));
+        p.submit(urb(2, 1, DIR_IN, 8, [0; 8], &[]));
+        assert_eq!(b.write(ep(EP1_IN), &[3; 64]), Ok(64));
+        assert_eq!(
+            p.take_replies().iter().map(status_of).collect::<Vec<_>>(),
+            [(2, status::PROTOCOL)]
+        );
+    }
+
+    #[test]
+    fn an_out_urb_is_delivered_in_packets_of_the_endpoint_s_size() {
+        let (b, p) = bus();
+        let data: Vec<u8> = (0..100).collect();
+        p.submit(urb(1, 1, DIR_OUT, 100, [0; 8], &data));
+        assert!(matches!(b.poll(), PollResult::Data { ep_out: 2, .. }));
+        let mut buf = [0u8; 64];
+        assert_eq!(b.read(ep(EP1_OUT), &mut buf), Ok(64));
+        assert!(p.take_replies().is_empty());
+        assert_eq!(b.read(ep(EP1_OUT), &mut buf), Ok(36));
+        assert_eq!(&buf[..36], &data[64..]);
+        assert!(matches!(
+            &p.take_replies()[..],
+            [Reply::Submit {
+                actual_length: 100,
+                ..
+            }]
+        ));
+        assert_eq!(b.read(ep(EP1_OUT), &mut buf), Err(UsbError::WouldBlock));
+    }
+
+    #[test]
+    fn unlinking_a_control_transfer_in_progress_lets_the_next_one_run_clean() {
+        let (b, p) = bus();
+        p.submit(urb(1, 0, DIR_IN, 18, GET_DEVICE, &[]));
+        b.poll();
+        let mut buf = [0u8; 64];
+        b.read(ep(EP0_OUT), &mut buf).unwrap();
+        p.unlink(Unlink {
+            seqnum: 2,
+            devid: 0,
+            direction: DIR_IN,
+            ep: 0,
+            unlink_seqnum: 1,
+        });
+        // The device answers late: dropped.
+        b.write(ep(EP0_IN), &[0xEE; 18]).unwrap();
+        p.submit(urb(3, 0, DIR_IN, 18, GET_DEVICE, &[]));
+        serve_get_device(&b);
+        let r = p.take_replies();
+        assert_eq!(
+            r.iter().map(status_of).collect::<Vec<_>>(),
+            [(2, status::UNLINKED), (3, 0)]
+        );
+        assert!(matches!(&r[1], Reply::Submit { data, .. } if data == &[0x12; 18]));
+    }
+
+    #[test]
+    fn endpoints_are_full_speed_sized_and_allocated_once() {
+        let (mut b, _p) = new();
+        assert_eq!(
+            b.alloc_ep(
+                UsbDirection::In,
+                Some(ep(0x81)),
+                EndpointType::Interrupt,
+                512,
+                1
+            ),
+            Err(UsbError::EndpointMemoryOverflow)
+        );
+        b.alloc_ep(
+            UsbDirection::In,
+            Some(ep(0x81)),
+            EndpointType::Interrupt,
+            64,
+            1,
+        )
+        .unwrap();
+        assert_eq!(
+            b.alloc_ep(
+                UsbDirection::In,
+                Some(ep(0x81)),
+                EndpointType::Interrupt,
+                64,
+                1
+            ),
+            Err(UsbError::InvalidEndpoint)
+        );
+        let next = b
+            .alloc_ep(UsbDirection::In, None, EndpointType::Bulk, 64, 0)
+            .unwrap();
+        assert_eq!(next, ep(0x82));
+        assert_eq!(b.endpoint_type(next), Some(EndpointType::Bulk));
+    }
+}

@@ -593,3 +593,17 @@ fn a_system_reset_0x02_unplugs_and_the_next_run_is_boot_mode() {
     assert_eq!(rig.pbox.runs, 2);
     assert!(!rig.server.is_imported());
 }
+
+#[test]
+fn a_transfer_that_ends_on_a_full_packet_at_wlength_leaves_no_zlp_behind() {
+    // The serial string is 72 bytes: asked for 64, usb-device sends one full
+    // packet and would follow it with a ZLP; the host is done at wLength.
+    let mut rig = Rig::new();
+    rig.import();
+    rig.enumerate();
+    let s = rig.get_descriptor(3, 3, 64);
+    assert_eq!(s.len(), 64);
+    assert_eq!(rig.get_descriptor(1, 0, 18), MANUAL_DEVICE);
+    assert_eq!(rig.get_descriptor(3, 3, 255).len(), 72);
+    assert_eq!(rig.pbox.port().stray_ep0_writes(), 0);
+}
