@@ -1,6 +1,7 @@
 //! The bridge's USB device against a real host stack, without a USB port.
 //!
-//! A USB/IP device server of our own ([`protocol`], [`bus`], [`server`]):
+//! A USB/IP device server of our own ([`protocol`], [`bus`], [`server`];
+//! [`vhci`] is the client side an import needs, as `usbip attach` does it):
 //! [`bus::UsbIpBus`] implements usb-device's `UsbBus`, so the logic crate's
 //! PoStep60 HID class and device descriptors run on it unchanged, with the
 //! bridge behind them as the firmware runs it ([`postep_box`]). A Linux

@@ -370,7 +370,7 @@ fn stream(c: &mut Checks, hid: &Hid) -> Result<(), String> {
     // read, so the count is the queue's (0xA2's own answer is dropped too).
     std::thread::sleep(Duration::from_millis(1500));
     hid.write(&out(0xA2))?;
-    std::thread::sleep(Duration::from_millis(100));
+    std::thread::sleep(Duration::from_millis(300));
     let queued = hid.drain()?;
     let streamed = queued.iter().filter(|(r, _)| is_stream(r)).count();
     c.check(
