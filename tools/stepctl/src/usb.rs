@@ -220,7 +220,7 @@ impl<H: Hid> UsbBus<H> {
     pub fn transact(&mut self, out: &Report, what: &str) -> Result<Report> {
         let name = self.hid.name();
         // Reports still queued (a running 0xA0 stream fills Linux hidraw's
-        // 64-report queue in 0.64 s, and a full queue drops new ones — the
+        // 63-report queue in 0.63 s, and a full queue drops new ones — the
         // reply to this command among them): read them away first.
         for _ in 0..DRAIN_MAX {
             match self.hid.read(Duration::ZERO) {
@@ -609,7 +609,7 @@ mod tests {
     // [46]; 0x81: packet id 0xBA, response 0x81, DRV8711 image [40..55] LSB
     // first, mode [62]; 0x88: 0xCC / 0x87, LE32 limits at [24], [28], [32]).
 
-    /// A hidraw reader: 64 reports queued at most, newer ones dropped.
+    /// A hidraw reader: 63 reports queued at most (a 64-slot ring), newer ones dropped.
     struct Hidraw {
         queue: std::collections::VecDeque<Report>,
         reply: Report,
@@ -617,7 +617,7 @@ mod tests {
 
     impl Hid for Hidraw {
         fn write(&mut self, _report: &Report) -> std::result::Result<(), String> {
-            if self.queue.len() < 64 {
+            if self.queue.len() < 63 {
                 self.queue.push_back(self.reply);
             }
             Ok(())
@@ -638,7 +638,7 @@ mod tests {
         let info = reply(0, 0, 0, 0, &[(46, &[2])]);
         let mut b = UsbBus::new(
             Hidraw {
-                queue: std::iter::repeat_n(stream, 64).collect(),
+                queue: std::iter::repeat_n(stream, 63).collect(),
                 reply: info,
             },
             Duration::from_millis(10),
