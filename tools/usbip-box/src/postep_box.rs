@@ -34,8 +34,9 @@ use bridge_logic::postep60::analog::AnalogSample;
 use bridge_logic::postep60::settings::IMAGE_LEN;
 use bridge_logic::postep60::Board;
 use bridge_logic::rate::TICK_HZ;
-use bridge_logic::sim::{SimChain, SimClock, SimFlash};
+use bridge_logic::sim::{SimChain, SimFlash};
 use bridge_logic::transport::usb::{self as hid, PoStepHid, REPORT_LEN};
+use host_tests::clock::SimClock;
 use usb_device::bus::UsbBusAllocator;
 use usb_device::device::{UsbDevice, UsbDeviceState};
 
