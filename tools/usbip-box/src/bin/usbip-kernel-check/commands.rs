@@ -174,10 +174,11 @@ pub fn run(c: &mut Checks, hid: &mut Hid) -> Result<(), String> {
 
 fn device_info(c: &mut Checks, hid: &Hid) -> Result<(), String> {
     let r = ask(c, hid, "0x01 device info", &out(0x01))?;
+    // 0x01's [1..2] is BL_FW_VERSION (MSB first), not a packet id.
     c.eq(
-        "0x01: packet id [1], response [15]",
-        (r[1], r[15]),
-        (0x00, 0x00),
+        "0x01: bootloader [1..2] and application [3..4] version 0x0109 (the PoStep60's), response [15]",
+        (be16(&r, 1), be16(&r, 3), r[15]),
+        (0x0109, 0x0109, 0x00),
     );
     c.eq("0x01: DEVICE_MODE [5] application", r[5], 0xAB);
     c.eq("0x01: bootloader override pin [6] bit 0 high", r[6] & 1, 1);
