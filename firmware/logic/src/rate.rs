@@ -7,6 +7,9 @@
 //! else fails the build. Everything below the firmware takes the period as a
 //! parameter (the motion tests run at 1, 2 and 5 kHz whatever this says).
 
+// Build-time rate arithmetic on small constants (µs periods, chip counts ≤ 8).
+#![allow(clippy::arithmetic_side_effects)]
+
 /// Ticks per second (build setting `STEPBRIDGE_TICK_HZ`, default 1000).
 pub const TICK_HZ: u32 = match option_env!("STEPBRIDGE_TICK_HZ") {
     Some(s) => parse(s),
@@ -31,6 +34,8 @@ const _: () = assert!(
 );
 
 /// Decimal digits → u32 at compile time (anything else fails the build).
+// Only ever const-evaluated: an index or an assertion that fails fails the build.
+#[allow(clippy::indexing_slicing, clippy::panic)]
 const fn parse(s: &str) -> u32 {
     let b = s.as_bytes();
     assert!(

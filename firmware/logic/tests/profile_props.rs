@@ -3,6 +3,15 @@
 //! Every case simulates a whole move tick by tick and checks the promises of
 //! `motion::profile`'s module doc at every tick.
 
+// A test: not bus input.
+#![allow(
+    clippy::indexing_slicing,
+    clippy::arithmetic_side_effects,
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic
+)]
+
 use bridge_logic::motion::{Limits, Profile};
 use proptest::prelude::*;
 

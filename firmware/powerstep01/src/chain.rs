@@ -211,6 +211,10 @@ impl Plan {
     /// then the streams are right-aligned on the longest one and transposed
     /// into windows. The control tick runs this every tick: each command is
     /// encoded once and every index is bounded by a constant array length.
+    // Positions are bounded by the constants before any sum: a device's
+    // stream is at most MAX_WINDOWS + 4 bytes (checked before each command
+    // is placed), so no position, length or window count can overflow.
+    #[allow(clippy::arithmetic_side_effects)]
     pub fn schedule(&mut self, batch: &Batch) -> Result<(), ScheduleError> {
         let n = usize::from(batch.n).min(MAX_DEVICES);
         self.n = n as u8;
@@ -316,7 +320,8 @@ impl Plan {
 
     /// Total bytes clocked (windows × devices).
     pub fn bytes(&self) -> usize {
-        self.windows() * self.devices()
+        // Both at most MAX_WINDOWS / MAX_DEVICES.
+        self.windows().saturating_mul(self.devices())
     }
 
     /// The bytes of window `w` (N bytes, first one out first), if it exists.
@@ -352,7 +357,7 @@ impl Plan {
             let mut value = 0u32;
             for k in 0..usize::from(r.len) {
                 let byte = rx
-                    .get(usize::from(r.first_window) + k)
+                    .get(usize::from(r.first_window).saturating_add(k))
                     .and_then(|w| w.get(slot))
                     .copied()
                     .unwrap_or(0);
@@ -426,6 +431,8 @@ impl Replies {
 /// a harmless command (GetParam of an existing register) for whichever
 /// device ends up holding it.
 const DETECT_LEN: usize = 2 * MAX_DEVICES;
+// Evaluated at compile time (`DETECT`): an out-of-range index fails the build.
+#[allow(clippy::indexing_slicing, clippy::arithmetic_side_effects)]
 const fn detect_pattern() -> [u8; DETECT_LEN] {
     let mut p = [0u8; DETECT_LEN];
     let mut i = 0;

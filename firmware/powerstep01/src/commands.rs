@@ -122,7 +122,7 @@ impl Encoded {
         };
         Encoded {
             bytes,
-            len: 1 + arg_bytes.min(3),
+            len: arg_bytes.min(3).saturating_add(1),
         }
     }
 
@@ -232,7 +232,7 @@ impl Command {
 
     /// Total bytes on the wire for this device (command byte + arguments).
     pub const fn wire_len(&self) -> u8 {
-        1 + self.arg_len()
+        self.arg_len().saturating_add(1)
     }
 
     /// Response bytes the device shifts out after the command byte.

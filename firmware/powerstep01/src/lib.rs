@@ -3,8 +3,17 @@
 //! pipeline contract of a chain driver — and nothing about PoStep60,
 //! transports or motion. It imports no other stepbridge crate.
 #![cfg_attr(not(test), no_std)]
-#![forbid(unsafe_code)]
-#![warn(missing_debug_implementations)]
+// Tests are not bus input: they may index, unwrap and panic.
+#![cfg_attr(
+    test,
+    allow(
+        clippy::indexing_slicing,
+        clippy::arithmetic_side_effects,
+        clippy::unwrap_used,
+        clippy::expect_used,
+        clippy::panic
+    )
+)]
 
 pub mod chain;
 pub mod commands;

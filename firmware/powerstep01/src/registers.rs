@@ -310,6 +310,8 @@ impl Register {
     }
 
     /// The register at `address`, if one exists (5-bit command field).
+    // Indexed only after the range check on the line before.
+    #[allow(clippy::indexing_slicing, clippy::arithmetic_side_effects)]
     pub const fn from_address(address: u8) -> Option<Register> {
         // `address` comes from a command byte: never index with it unchecked.
         if address == 0 || address as usize > REGISTERS.len() {
@@ -319,6 +321,8 @@ impl Register {
     }
 
     /// The table entry. Discriminants are 1..=27, so the index cannot fail.
+    // (`table_is_in_address_order` pins the layout.)
+    #[allow(clippy::indexing_slicing, clippy::arithmetic_side_effects)]
     pub const fn info(self) -> &'static RegisterInfo {
         &REGISTERS[self as usize - 1]
     }
@@ -338,7 +342,8 @@ impl Register {
 
     /// Mask of the significant bits.
     pub const fn mask(self) -> u32 {
-        (1u32 << self.bits()) - 1
+        // bits() is 1..=22 for every register.
+        (1u32 << self.bits()).wrapping_sub(1)
     }
 
     pub const fn access(self) -> Access {

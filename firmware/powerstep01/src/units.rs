@@ -11,6 +11,12 @@
 //!   physical exactly (or rounded to nearest where the result is not integral).
 //! * Voltages are in microvolts or nanovolts, fractions of V_S in basis points.
 
+// Every conversion widens its argument (a register value of at most 22
+// bits, or a u32 in Q16.16) to u64/u128 before it multiplies, and divides by
+// non-zero constants: no product or sum can overflow (each function's doc
+// gives the range; `tests` run them at their extremes).
+#![allow(clippy::arithmetic_side_effects)]
+
 /// One Q16.16 unit: `steps_q16(5)` = 5 steps/s.
 pub const fn steps_q16(steps: u32) -> u32 {
     steps << 16

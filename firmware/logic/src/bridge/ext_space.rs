@@ -39,6 +39,13 @@ fn io_error(e: crate::ioext::IoError) -> ExtError {
     }
 }
 
+/// Register `at` of a block (nothing if the block is shorter).
+fn put16(regs: &mut [u16], at: u8, v: u16) {
+    if let Some(slot) = regs.get_mut(usize::from(at)) {
+        *slot = v;
+    }
+}
+
 fn put32(regs: &mut [u16], at: u8, v: u32) {
     let at = usize::from(at);
     if let Some(s) = regs.get_mut(at..at + 2) {
@@ -197,11 +204,15 @@ impl<B: ChainBus> Bridge<B> {
             put32(&mut r, at, v);
         }
         for (i, x) in m.exceptions_by_code.iter().enumerate() {
-            put32(&mut r, diag::MODBUS_EXCEPTION_01 + 2 * i as u8, *x);
+            put32(
+                &mut r,
+                diag::MODBUS_EXCEPTION_01.saturating_add((i as u8).saturating_mul(2)),
+                *x,
+            );
         }
         for (i, a) in self.group.iter().enumerate() {
             let base = self.resets_base.get(i).copied().unwrap_or(0);
-            if let Some(slot) = r.get_mut(usize::from(diag::CHIP_RESETS_AXIS0) + i) {
+            if let Some(slot) = r.get_mut(usize::from(diag::CHIP_RESETS_AXIS0).saturating_add(i)) {
                 *slot = a.chip_resets().wrapping_sub(base).min(0xFFFF) as u16;
             }
         }
@@ -243,19 +254,26 @@ impl<B: ChainBus> Bridge<B> {
         let h = &d.settings.homing;
         let state = a.homing_state();
         let mut r = [0u16; homing::LEN];
-        r[usize::from(homing::COMMAND)] = state.code();
-        r[usize::from(homing::RESULT)] = match state {
-            crate::motion::HomingState::Failed(e) => e.code(),
-            _ => d.homing_refusal().map_or(0, |e| e.code()),
-        };
-        r[usize::from(homing::HOMED)] = u16::from(a.is_homed());
-        r[usize::from(homing::DIRECTION)] = u16::from(h.forward);
+        put16(&mut r, homing::COMMAND, state.code());
+        put16(
+            &mut r,
+            homing::RESULT,
+            match state {
+                crate::motion::HomingState::Failed(e) => e.code(),
+                _ => d.homing_refusal().map_or(0, |e| e.code()),
+            },
+        );
+        put16(&mut r, homing::HOMED, u16::from(a.is_homed()));
+        put16(&mut r, homing::DIRECTION, u16::from(h.forward));
         put32(&mut r, homing::SEARCH_SPEED, h.search_speed);
         put32(&mut r, homing::RELEASE_SPEED, h.release_speed);
         put32(&mut r, homing::MAX_TRAVEL, h.max_travel);
-        r[usize::from(homing::TIMEOUT_S)] = h.timeout_s;
-        r[usize::from(homing::END_SWITCH)] =
-            u16::from(d.settings.end_switch) | u16::from(d.settings.end_switch_nc) << 1;
+        put16(&mut r, homing::TIMEOUT_S, h.timeout_s);
+        put16(
+            &mut r,
+            homing::END_SWITCH,
+            u16::from(d.settings.end_switch) | u16::from(d.settings.end_switch_nc) << 1,
+        );
         Ok(r)
     }
 
@@ -319,24 +337,31 @@ impl<B: ChainBus> Bridge<B> {
         let mut r = [0u16; watchdog::LEN];
         let mut tripped = 0u16;
         for (i, (w, s)) in self.watchdog.iter().zip(self.watch.iter()).enumerate() {
-            if let Some(slot) = r.get_mut(2 * i..2 * i + 2) {
-                slot.copy_from_slice(&[w.timeout_ms, w.action as u16]);
-            }
-            if let Some(slot) = r.get_mut(usize::from(watchdog::TRIPS) + i) {
-                *slot = s.trips.min(0xFFFF) as u16;
-            }
+            // i < WATCHED_BUSES (3): the offsets are small.
+            let i8 = i as u8;
+            put16(&mut r, i8.saturating_mul(2), w.timeout_ms);
+            put16(
+                &mut r,
+                i8.saturating_mul(2).saturating_add(1),
+                w.action as u16,
+            );
+            put16(
+                &mut r,
+                watchdog::TRIPS.saturating_add(i8),
+                s.trips.min(0xFFFF) as u16,
+            );
             if s.tripped {
                 tripped |= 1 << i;
             }
         }
-        r[usize::from(watchdog::TRIPPED)] = tripped;
+        put16(&mut r, watchdog::TRIPPED, tripped);
         r
     }
 
     fn watchdog_write(&mut self, offset: u8, data: &[u16]) -> Result<(), ExtError> {
         let mut next = self.watchdog;
         for (i, v) in data.iter().enumerate() {
-            let at = usize::from(offset) + i;
+            let at = usize::from(offset).saturating_add(i);
             let w: &mut Watchdog = next.get_mut(at / 2).ok_or(ExtError::IllegalAddress)?;
             if at % 2 == 0 {
                 w.timeout_ms = *v;
@@ -347,7 +372,7 @@ impl<B: ChainBus> Bridge<B> {
                     .ok_or(ExtError::IllegalValue)?;
             }
         }
-        if usize::from(offset) + data.len() > 2 * WATCHED_BUSES {
+        if usize::from(offset).saturating_add(data.len()) > 2 * WATCHED_BUSES {
             return Err(ExtError::IllegalAddress);
         }
         self.watchdog = next;
@@ -367,19 +392,26 @@ impl<B: ChainBus> Bridge<B> {
         };
         put32(&mut r, axis::POSITION, pos);
         put32(&mut r, axis::TARGET, sat(a.required_position()));
-        r[usize::from(axis::STATE)] = match a.state() {
-            AxisState::Setup(_) => 0,
-            AxisState::Idle => 1,
-            AxisState::Streaming => 2,
-            AxisState::Stopping => 3,
-            AxisState::Landing => 4,
-            AxisState::Homing => 5,
-        };
-        r[usize::from(axis::FOLLOWING_ERROR)] =
+        put16(
+            &mut r,
+            axis::STATE,
+            match a.state() {
+                AxisState::Setup(_) => 0,
+                AxisState::Idle => 1,
+                AxisState::Streaming => 2,
+                AxisState::Stopping => 3,
+                AxisState::Landing => 4,
+                AxisState::Homing => 5,
+            },
+        );
+        put16(
+            &mut r,
+            axis::FOLLOWING_ERROR,
             a.following_error()
-                .clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16 as u16;
-        r[usize::from(axis::FAULTS)] = u16::from(d.faults());
-        r[usize::from(axis::CHIP_STATUS)] = a.status().raw();
+                .clamp(i64::from(i16::MIN), i64::from(i16::MAX)) as i16 as u16,
+        );
+        put16(&mut r, axis::FAULTS, u16::from(d.faults()));
+        put16(&mut r, axis::CHIP_STATUS, a.status().raw());
         Ok(r)
     }
 

@@ -117,7 +117,8 @@ impl<B: ChainBus> I2cTarget for Bridge<B> {
                 for (pair, v) in out[1..].chunks_exact_mut(2).zip(regs.iter().take(n)) {
                     pair.copy_from_slice(&v.to_be_bytes());
                 }
-                1 + 2 * n
+                // n ≤ EXT_MAX (3): the response fits RESPONSE_MAX.
+                n.saturating_mul(2).saturating_add(1)
             }
             Some(I2cCommand::ExtStatus(st)) => {
                 out[0] = st;

@@ -640,8 +640,8 @@ impl<B: ChainBus> Bridge<B> {
         let trouble = self.chain_error.is_some()
             || self.source == SettingsSource::FactoryUnreadable
             || self.diag.save_errors > 0;
-        let period = if trouble { 200 } else { 1000 };
-        now_ms % period < period / 2
+        let period: u64 = if trouble { 200 } else { 1000 };
+        now_ms.checked_rem(period).unwrap_or(0) < period / 2
     }
 
     /// New ADC samples (supply, temperature).
@@ -920,7 +920,7 @@ impl<B: ChainBus> Bridge<B> {
             .checked_sub(k)
             .filter(|b| *b >= 1)
             .ok_or(CommandError::BadAddress)?;
-        let last = usize::from(base) + n.saturating_sub(1);
+        let last = usize::from(base).saturating_add(n.saturating_sub(1));
         let on_every_bus = [
             usize::from(I2C_ADDRESS_MAX),
             usize::from(crate::transport::modbus::ID_MAX),

@@ -245,7 +245,7 @@ impl<B: ChainBus> Bridge<B> {
         let mut out = InReport::new(0, cmd::EXT_READ, p.axis, st);
         if st == status::DONE {
             for (i, v) in regs.iter().take(n).enumerate() {
-                out.be16(16 + 2 * i, *v);
+                out.be16(16usize.saturating_add(i.saturating_mul(2)), *v);
             }
         }
         Some(out)
@@ -353,7 +353,7 @@ impl<B: ChainBus> Bridge<B> {
         self.put_pins_and_voltage(&mut r, k);
         r.u8(15, 0x00);
         for (i, w) in iap_uid(self.uid).iter().enumerate() {
-            r.be32(24 + 4 * i, *w);
+            r.be32(24usize.saturating_add(i.saturating_mul(4)), *w);
         }
         r.be16(44, self.temperature);
         r.u8(46, self.u16_query(k, Query::DriverStatus) as u8);
@@ -408,7 +408,7 @@ impl<B: ChainBus> Bridge<B> {
         k: usize,
     ) {
         for (i, v) in regs.0.iter().enumerate() {
-            r.le16(40 + 2 * i, *v);
+            r.le16(40usize.saturating_add(i.saturating_mul(2)), *v);
         }
         r.u8(56, max_temp);
         r.put(57, &idle.to_bytes());

@@ -60,6 +60,11 @@
 //!   bridge fault (overcurrent, thermal shutdown) stops the profile at the
 //!   read-back position and switches the bridges off.
 
+// Microstep positions are i64 (22-bit chip reads unwrapped, far from the i64
+// range), speeds and ticks are bounded by the chip's caps; the rate estimate
+// uses checked or saturating operations where its inputs are unbounded.
+#![allow(clippy::arithmetic_side_effects)]
+
 use super::divisor::Divisor;
 use super::homing::{Homing, HomingError, HomingParams, HomingState, Seen, Step};
 use super::profile::{Limits, Mode, Profile};

@@ -12,6 +12,10 @@
 //! `n·m/2⁶⁴ > n/d − n(1 + d)/(d·2⁶⁴) ≥ n/d − 2` for every `n < 2⁶⁴`, so `q`
 //! is at least `⌊n/d⌋ − 2`. The result is exactly `n / d` (property test).
 
+// A 64-bit reciprocal divider: the products are of 32-bit halves in u64 and
+// the quotient correction runs at most twice (module doc, exhaustive tests).
+#![allow(clippy::arithmetic_side_effects)]
+
 /// A divisor with its precomputed reciprocal.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Divisor {

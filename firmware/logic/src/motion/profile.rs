@@ -36,6 +36,11 @@
 //! partial tick from `r` to zero. It exceeds the continuous `v²/2dec` by at
 //! most `dec/8`, so move times match the analytic trapezoid within a tick.
 
+// Exact integer kinematics on bounded state: positions in i128, velocities and
+// limits in i64 clamped to the chip's caps; the bounds are in the module doc
+// and the property tests run the extremes.
+#![allow(clippy::arithmetic_side_effects)]
+
 use super::divisor::Divisor;
 
 /// Velocity and acceleration fraction bits (2⁻³² steps per tick).

@@ -8,6 +8,10 @@
 //! microsteps 1/2^S full step (the chip's STEP_SEL S). Chip speeds and
 //! accelerations count full steps (facts doc §4).
 
+// Conversions widen to i64/u64/i128 before they multiply and shift by at
+// most 8 + 33 bits; every input is a u32 or a clamped speed (function docs).
+#![allow(clippy::arithmetic_side_effects)]
+
 use super::divisor::Divisor;
 use super::profile::Limits;
 use crate::powerstep::fields::StepSel;
@@ -266,6 +270,8 @@ pub const fn limit_cap(logical_shift: u8) -> Limits {
 }
 
 /// [`limit_cap`] for every logical step mode, computed at compile time.
+// Const evaluation: an out-of-range index would fail the build.
+#[allow(clippy::indexing_slicing)]
 pub const LIMIT_CAPS: [Limits; 9] = {
     let mut caps = [Limits {
         max_speed: 0,
@@ -281,6 +287,8 @@ pub const LIMIT_CAPS: [Limits; 9] = {
 };
 
 /// `limits` clamped to what the chip can follow in logical step mode `shift`.
+// The index is clamped to 8 on the line it is computed: LIMIT_CAPS has 9.
+#[allow(clippy::indexing_slicing)]
 pub const fn clamp_to_chip(limits: Limits, shift: u8) -> Limits {
     let cap = LIMIT_CAPS[if shift as usize > 8 {
         8

@@ -9,6 +9,9 @@
 //! sits next to the powerSTEP01s on the board — a board sensor can replace it
 //! through [`Board::temperature_offset_eighths`].
 
+// ADC conversions: 12-bit samples and board constants widened to u64/i64.
+#![allow(clippy::arithmetic_side_effects)]
+
 /// One set of raw ADC samples (12-bit counts).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

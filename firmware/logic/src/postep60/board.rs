@@ -69,7 +69,7 @@ impl Board {
             DriveMode::Current => units::tval_from_milliamps(ma, self.sense_milliohm) as u32,
             DriveMode::Voltage => {
                 // V = I·R in mV, as a fraction of the supply.
-                let mv = ma as u64 * self.phase_milliohm as u64 / 1000;
+                let mv = (ma as u64).saturating_mul(self.phase_milliohm as u64) / 1000;
                 let mv = if mv > u32::MAX as u64 {
                     u32::MAX
                 } else {

@@ -1,6 +1,9 @@
 //! PoStep60 current encoding (manual 8.3.12 and 8.3.18): on the wire a current
 //! is two bytes, Tq and Ai, with I = 0.065 A · Tq / 2^Ai.
 
+// Tq/Ai codec: u8 fields and mA values widened to u32/u64 before they multiply.
+#![allow(clippy::arithmetic_side_effects)]
+
 /// A current as the PoStep60 encodes it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]

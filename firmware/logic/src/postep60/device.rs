@@ -441,7 +441,7 @@ impl Device {
         let limit = u16::from(self.settings.temperature_limit);
         if celsius > limit {
             self.overheated = true;
-        } else if celsius + OVERHEAT_HYSTERESIS_C <= limit {
+        } else if celsius.saturating_add(OVERHEAT_HYSTERESIS_C) <= limit {
             self.overheated = false;
         }
         self.apply_currents(axis, board);
@@ -575,7 +575,10 @@ impl Device {
             release_speed: units::speed_from_steps_per_s(release),
             max_travel: logical_to_physical(i64::from(h.max_travel), cfg.logical_shift, cfg.step)
                 .unsigned_abs(),
-            timeout_ticks: u64::from(h.timeout_s) * 1_000_000 / u64::from(cfg.tick_us.max(1)),
+            timeout_ticks: u64::from(h.timeout_s)
+                .saturating_mul(1_000_000)
+                .checked_div(u64::from(cfg.tick_us))
+                .unwrap_or(0),
             nc: self.settings.end_switch_nc,
         };
         self.homing_refusal = None;
@@ -629,7 +632,11 @@ impl Device {
             return;
         }
         let speed = i32::try_from(speed).unwrap_or(i32::MAX);
-        let v = if self.settings.invert { -speed } else { speed };
+        let v = if self.settings.invert {
+            speed.saturating_neg()
+        } else {
+            speed
+        };
         axis.run_at(v);
     }
 
@@ -803,7 +810,7 @@ impl Device {
                     None => axis.soft_stop(),
                     Some(f) => {
                         let v = i32::try_from(f).unwrap_or(i32::MAX);
-                        axis.run_at(if reverse { -v } else { v });
+                        axis.run_at(if reverse { v.saturating_neg() } else { v });
                     }
                 }
             }

@@ -83,12 +83,12 @@ impl Serial {
         Some(Serial { baud, parity })
     }
     pub const fn code(self) -> u8 {
-        let b = if self.baud == 19200 { 3 } else { 0 };
-        b + match self.parity {
+        let b: u8 = if self.baud == 19200 { 3 } else { 0 };
+        b.saturating_add(match self.parity {
             Parity::Even => 0,
             Parity::Odd => 1,
             Parity::None => 2,
-        }
+        })
     }
 }
 
@@ -452,6 +452,10 @@ impl Settings {
         io: IoSettings::FACTORY,
     };
 
+    // Writes our own image into a fixed-size array at the layout's constant
+    // offsets (each region ends at or before IMAGE_LEN: see the layout's
+    // const assertions), no input involved.
+    #[allow(clippy::indexing_slicing)]
     pub fn to_image(&self, out: &mut [u8; IMAGE_LEN]) {
         out[0] = IMAGE_FORMAT;
         out[1] = self.base_address;
@@ -510,7 +514,7 @@ impl Settings {
         };
         let mut axes = [AxisSettings::FACTORY; MAX_DEVICES];
         let (records, io) = rest
-            .split_at_checked(MAX_DEVICES * record)
+            .split_at_checked(MAX_DEVICES.saturating_mul(record))
             .ok_or(ImageError::Invalid)?;
         for (axis, chunk) in axes.iter_mut().zip(records.chunks_exact(record)) {
             *axis = AxisSettings::decode(chunk, format).ok_or(ImageError::Invalid)?;
@@ -537,10 +541,11 @@ struct Writer<'a> {
 
 impl Writer<'_> {
     fn bytes(&mut self, b: &[u8]) {
-        if let Some(dst) = self.out.get_mut(self.at..self.at + b.len()) {
+        let end = self.at.saturating_add(b.len());
+        if let Some(dst) = self.out.get_mut(self.at..end) {
             dst.copy_from_slice(b);
         }
-        self.at += b.len();
+        self.at = end;
     }
 }
 
@@ -551,8 +556,9 @@ struct Reader<'a> {
 
 impl<'a> Reader<'a> {
     fn take(&mut self, n: usize) -> Option<&'a [u8]> {
-        let s = self.input.get(self.at..self.at.checked_add(n)?)?;
-        self.at += n;
+        let end = self.at.checked_add(n)?;
+        let s = self.input.get(self.at..end)?;
+        self.at = end;
         Some(s)
     }
     fn u8(&mut self) -> Option<u8> {

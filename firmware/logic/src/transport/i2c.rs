@@ -117,7 +117,8 @@ impl I2cSlave {
             match self.buf.get_mut(self.len) {
                 Some(slot) => {
                     *slot = byte;
-                    self.len += 1;
+                    // len < WRITE_MAX: `get_mut` found a slot.
+                    self.len = self.len.saturating_add(1);
                 }
                 None => self.overlong = true,
             }
@@ -333,7 +334,7 @@ fn shape(cmd: u8) -> Option<(u8, Build)> {
                 .zip(d.get(2..).unwrap_or(&[]).chunks_exact(2))
             {
                 *slot = u16::from_be_bytes([b(pair, 0), b(pair, 1)]);
-                len += 1;
+                len = len.saturating_add(1);
             }
             C::ExtWrite {
                 address: u16::from_be_bytes([b(d, 0), b(d, 1)]),

@@ -223,7 +223,7 @@ pub fn encode(value: Value, out: &mut [u8; 2 * REGISTERS_MAX]) -> usize {
             for (slot, v) in o.iter_mut().skip(pad).zip(b.iter().take(n)) {
                 *slot = *v;
             }
-            (o, (n + pad).min(2 * REGISTERS_MAX))
+            (o, n.saturating_add(pad).min(2 * REGISTERS_MAX))
         }
     };
     *out = bytes;

@@ -124,10 +124,12 @@ impl Timing {
                 t35_us: 1750,
             };
         }
-        let bits = CHARACTER_BITS as u64;
+        // 11 bits per character: the products below are constants.
+        const BITS_E6: u64 = CHARACTER_BITS as u64 * 1_000_000;
         // half-characters × bits × 1e6 / baud, rounded up; ≤ 38.5 s fits u32.
-        let t15 = (3 * bits * 1_000_000).div_ceil(2 * baud);
-        let t35 = (7 * bits * 1_000_000).div_ceil(2 * baud);
+        // (`baud` is one of the six settings, ≥ 1200: no product overflows.)
+        let t15 = (3 * BITS_E6).div_ceil(baud.saturating_mul(2));
+        let t35 = (7 * BITS_E6).div_ceil(baud.saturating_mul(2));
         Timing {
             t15_us: t15 as u32,
             t35_us: t35 as u32,
@@ -136,7 +138,7 @@ impl Timing {
 
     /// One character time, taken as ⅔·t1.5 (exact up to 19200 baud).
     pub const fn character_us(self) -> u32 {
-        ((self.t15_us as u64 * 2).div_ceil(3)) as u32
+        ((self.t15_us as u64).saturating_mul(2).div_ceil(3)) as u32
     }
 }
 
@@ -293,7 +295,8 @@ impl Frame {
         match self.buf.get_mut(self.len) {
             Some(slot) => {
                 *slot = byte;
-                self.len += 1;
+                // len < ADU_MAX: `get_mut` found a slot.
+                self.len = self.len.saturating_add(1);
             }
             None => self.fault = Some(Fault::Overlong),
         }
@@ -562,10 +565,10 @@ fn ext_exception(e: ExtError) -> NotServed {
 
 /// Big-endian registers of `data` (2 bytes each) into `regs`; how many.
 fn registers_of(data: &[u8], regs: &mut [u16; WRITE_QUANTITY_MAX as usize]) -> usize {
-    let mut n = 0;
+    let mut n: usize = 0;
     for (slot, pair) in regs.iter_mut().zip(data.chunks_exact(2)) {
         *slot = be16(pair, 0);
-        n += 1;
+        n = n.saturating_add(1);
     }
     n
 }
@@ -591,7 +594,7 @@ enum Pdu<'a> {
 fn be16(b: &[u8], at: usize) -> u16 {
     u16::from_be_bytes([
         b.get(at).copied().unwrap_or(0),
-        b.get(at + 1).copied().unwrap_or(0),
+        b.get(at.saturating_add(1)).copied().unwrap_or(0),
     ])
 }
 
@@ -677,7 +680,8 @@ fn serve(
             target
                 .ext_read(axis, address, regs)
                 .map_err(ext_exception)?;
-            let count = u8::try_from(2 * regs.len()).map_err(|_| Exception::IllegalDataValue)?;
+            let count = u8::try_from(regs.len().saturating_mul(2))
+                .map_err(|_| Exception::IllegalDataValue)?;
             let _ = out.push(READ_HOLDING_REGISTERS);
             let _ = out.push(count);
             for r in regs.iter() {

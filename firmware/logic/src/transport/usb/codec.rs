@@ -174,12 +174,17 @@ fn b(r: &[u8], i: usize) -> u8 {
     r.get(i).copied().unwrap_or(0)
 }
 
+/// Byte `i + k` (offsets are the tables' constants, below 64).
+fn bk(r: &[u8], i: usize, k: usize) -> u8 {
+    b(r, i.saturating_add(k))
+}
+
 fn le16(r: &[u8], i: usize) -> u16 {
-    u16::from_le_bytes([b(r, i), b(r, i + 1)])
+    u16::from_le_bytes([b(r, i), bk(r, i, 1)])
 }
 
 fn le32(r: &[u8], i: usize) -> u32 {
-    u32::from_le_bytes([b(r, i), b(r, i + 1), b(r, i + 2), b(r, i + 3)])
+    u32::from_le_bytes([b(r, i), bk(r, i, 1), bk(r, i, 2), bk(r, i, 3)])
 }
 
 /// Decode an OUT report: the request and the axis it addresses.
@@ -212,7 +217,7 @@ pub fn decode(r: &[u8]) -> Result<(UsbRequest, u8), UsbError> {
         cmd::WRITE_DRIVER_SETTINGS => {
             let mut regs = [0u16; REGISTERS];
             for (k, slot) in regs.iter_mut().enumerate() {
-                *slot = le16(r, 20 + 2 * k);
+                *slot = le16(r, 20usize.saturating_add(k.saturating_mul(2)));
             }
             UsbRequest::WriteDriverSettings(DriverSettings {
                 regs: Drv8711Regs(regs),
@@ -266,7 +271,7 @@ pub fn decode(r: &[u8]) -> Result<(UsbRequest, u8), UsbError> {
         cmd::WRITE_NAME => {
             let mut name = [0u8; NAME_LEN];
             for (k, slot) in name.iter_mut().enumerate() {
-                *slot = b(r, 2 + k);
+                *slot = bk(r, 2, k);
             }
             UsbRequest::WriteName(name)
         }
@@ -278,7 +283,8 @@ pub fn decode(r: &[u8]) -> Result<(UsbRequest, u8), UsbError> {
         cmd::EXT_WRITE => {
             let mut data = [0u16; EXT_MAX];
             for (k, slot) in data.iter_mut().enumerate() {
-                *slot = u16::from_be_bytes([b(r, 24 + 2 * k), b(r, 25 + 2 * k)]);
+                let at = 24usize.saturating_add(k.saturating_mul(2));
+                *slot = u16::from_be_bytes([b(r, at), bk(r, at, 1)]);
             }
             UsbRequest::ExtWrite {
                 address: u16::from_be_bytes([b(r, 20), b(r, 21)]),

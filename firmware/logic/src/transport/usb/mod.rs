@@ -115,14 +115,14 @@ pub fn serial_number(uid: [u32; 3]) -> Serial {
         if k > 0 {
             let _ = s.push('-');
         }
-        for shift in (0..8).rev() {
-            let nibble = ((w >> (shift * 4)) & 0xF) as u8;
-            let c = if nibble < 10 {
-                b'0' + nibble
-            } else {
-                b'A' + nibble - 10
-            };
-            let _ = s.push(char::from(c));
+        for byte in w.to_be_bytes() {
+            for nibble in [byte >> 4, byte & 0xF] {
+                let c = b"0123456789ABCDEF"
+                    .get(usize::from(nibble))
+                    .copied()
+                    .unwrap_or(b'?');
+                let _ = s.push(char::from(c));
+            }
         }
     }
     s
