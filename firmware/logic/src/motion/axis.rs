@@ -28,7 +28,11 @@
 //!   sends SoftStop, waits for the chip to report not-busy, then sends
 //!   `GoTo(target)`: the chip covers the last few microsteps itself and cannot
 //!   overshoot. The axis is settled when STATUS says not busy and ABS_POS
-//!   equals the target.
+//!   equals the target. A `Run` toward the target is never faster than the
+//!   chip can still stop from before it, from where it is estimated to be
+//!   (`units::cap_to_stop`): a chip that got ahead of the profile (a late
+//!   or skipped tick, which it ran through at its last speed) brakes
+//!   earlier, and passes the target by no more than it ran in that time.
 //! * **Every accepted command takes effect, in order.** A stop or Set zero
 //!   in progress never discards a target, speed or zero given after it: when
 //!   the chip has stopped, the profile is re-based (to the chip's position,
@@ -315,6 +319,8 @@ pub struct Axis {
     /// Divisors of the per-tick speed conversions (follow `cfg`).
     speed_div: Divisor,
     corr_div: Divisor,
+    /// [`units::cap_to_stop`]'s factor for the profile's deceleration.
+    stop_cap: u64,
     profile: Profile,
     state: AxisState,
     limits: LimitState,
@@ -523,6 +529,7 @@ impl Axis {
                 cfg.step,
                 correction_ticks(cfg.tick_us),
             ),
+            stop_cap: units::stop_cap_q16(limits.dec, cfg.logical_shift, cfg.step),
             profile: Profile::new(cfg.tick_us, limits),
             state: AxisState::Setup(phase::HIZ),
             limits: LimitState {
@@ -926,6 +933,7 @@ impl Axis {
         if l != self.profile.limits() {
             self.profile.set_limits(l);
         }
+        self.stop_cap = units::stop_cap_q16(l.dec, self.cfg.logical_shift, self.cfg.step);
     }
 
     fn stop_then(&mut self, after: AfterStop, cmd: Command) {
@@ -1327,7 +1335,7 @@ impl Axis {
         }
         let ff = units::speed_reg_with(self.profile.velocity_internal(), self.speed_div);
         let corr = units::correction_reg_with(self.rb.error, self.corr_div);
-        let spd = ff + corr;
+        let spd = self.cap_to_stop(ff, ff + corr);
         let dir = if spd < 0 || (spd == 0 && ff < 0) {
             Direction::Reverse
         } else {
@@ -1343,6 +1351,36 @@ impl Axis {
                 Direction::Reverse => -i64::from(mag),
             };
         }
+    }
+
+    /// A `Run` (`spd`, the feed-forward `ff` plus the correction) toward
+    /// the target no faster than the chip can still stop from before it,
+    /// from where the chip is estimated to be (the profile's position less
+    /// the last following error): a chip ahead of the profile (a late or
+    /// skipped tick, during which it ran on at its last speed) brakes
+    /// earlier instead of being carried past the target by the correction.
+    /// Only while the profile itself brakes onto the target in that
+    /// direction: a profile that cannot stop on it (a retarget inside the
+    /// braking distance) passes it on purpose.
+    fn cap_to_stop(&self, ff: i64, spd: i64) -> i64 {
+        let Mode::Position(_) = self.profile.mode() else {
+            return spd;
+        };
+        let target = self.target_physical();
+        let profile = self.profile_physical();
+        let chip = profile.saturating_sub(self.rb.error);
+        let (ahead, left) = if spd >= 0 {
+            (target.saturating_sub(profile), target.saturating_sub(chip))
+        } else {
+            (profile.saturating_sub(target), chip.saturating_sub(target))
+        };
+        let onto = ahead > 0
+            && (ff >= 0) == (spd >= 0)
+            && units::cap_to_stop(ff, ahead, self.stop_cap) == ff;
+        if !onto {
+            return spd;
+        }
+        units::cap_to_stop(spd, left, self.stop_cap)
     }
 
     /// Take this tick's replies for the axis's device.
