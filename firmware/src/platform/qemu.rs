@@ -10,10 +10,16 @@
 //!   update interrupt every 1.01 ms (measured; QEMU re-arms it from the
 //!   moment the tick is served), so the app's TIM2 task runs unchanged.
 //! * **Chain**: [`ChainDriver`] holds [`AXES`] simulated powerSTEP01s and
-//!   lets them live through the monotonic's time that passed since the last
-//!   CS window, as real chips run on their own oscillator whatever the
-//!   control loop does. The bridge's clock counts ticks, so the two drift
-//!   apart by the timer's 1 %, as a board's MCU and chip oscillators do.
+//!   lets them live through the time of QEMU's virtual clock ([`HostClock`],
+//!   TIM5's counter: the host's time) that passed since the last CS window,
+//!   as real chips run on real time whatever the control loop does: a late
+//!   or lost tick is one they run through at their last `Run` speed, as on a
+//!   board. (They lived on the SysTick monotonic before, which loses time at
+//!   every 100 µs wrap, 10–30 % behind the host: chips whose ramps, in the
+//!   bridge's time, were 0.7–1.2 × the profile's instead of 1.5 ×, and could
+//!   not follow its braking.) The bridge's clock counts ticks, so the two
+//!   drift apart by the timer's 1 %, as a board's MCU and chip
+//!   oscillators do.
 //!   [`ChainDma`] has the board's DMA driver's API but clocks a batch's
 //!   windows through those chips at once in `start` and hands them over at
 //!   the next `poll`, so the app's pipelined control tick runs unchanged
@@ -57,7 +63,6 @@ use crate::board::{
     IoExtTimerDma, SenseAdc, SupplySense,
 };
 use crate::drivers::chain_spi::{ChainBuffers, ChainSpiError};
-use crate::drivers::clock;
 use crate::drivers::ioext_spi::{IoExtBuffers, IoExtError, Started};
 use crate::drivers::usb::Link;
 use bridge_logic::transport::usb::REPORT_LEN;
@@ -155,12 +160,57 @@ impl TickTimer {
     }
 }
 
-/// The chain stand-in: [`AXES`] simulated chips that live on the
-/// monotonic's time (module docs).
+/// QEMU's virtual clock, ns, 32 bits (wraps every 4.29 s): TIM5's counter.
+/// QEMU 7.2's STM32 timer model computes CNT from its virtual clock at
+/// 1 GHz on every read (PSC = 0): without `-icount` that is the host's
+/// time. TIM5 is not used on the board; [`HostClock::start`] starts it.
+fn virtual_ns32() -> u32 {
+    // SAFETY: a read of TIM5's counter, which has no side effect; TIM5 is
+    // otherwise only written once, by `HostClock::start`.
+    unsafe { pac::TIM5::steal() }.cnt().read().bits()
+}
+
+/// QEMU's virtual clock (the host's time) in ns, unwrapped from
+/// [`virtual_ns32`] against the previous read: read at least every 4.29 s
+/// (every control tick reads it). The simulated chips live on it, as a
+/// board's chips live on real time.
+pub struct HostClock {
+    raw: u32,
+    ns: u64,
+}
+
+impl HostClock {
+    fn start(rcc: &mut Rcc) -> HostClock {
+        pac::TIM5::enable(rcc);
+        // SAFETY: nothing else in the firmware uses TIM5 (the app never
+        // takes it out of `pac::Peripherals`): this is its only set-up.
+        let tim = unsafe { pac::TIM5::steal() };
+        tim.psc().write(|w| w.psc().set(0));
+        tim.cr1().write(|w| w.cen().set_bit());
+        HostClock {
+            raw: virtual_ns32(),
+            ns: 0,
+        }
+    }
+
+    /// ns since [`HostClock::start`].
+    pub fn now_ns(&mut self) -> u64 {
+        let raw = virtual_ns32();
+        self.ns = self
+            .ns
+            .saturating_add(u64::from(raw.wrapping_sub(self.raw)));
+        self.raw = raw;
+        self.ns
+    }
+}
+
+/// The chain stand-in: [`AXES`] simulated chips that live on QEMU's
+/// virtual clock, the host's time (module docs).
 pub struct ChainDriver {
     chain: SimChain,
-    /// `clock::now_us` at the last window.
-    last_us: u64,
+    clock: HostClock,
+    /// `clock` at the last window, ns.
+    last_ns: u64,
 }
 
 impl ChainDriver {
@@ -175,9 +225,9 @@ impl ChainBus for ChainDriver {
     type Error = ChainSpiError;
 
     fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), ChainSpiError> {
-        let now = clock::now_us();
-        let elapsed_ns = now.saturating_sub(self.last_us).saturating_mul(1_000);
-        self.last_us = now;
+        let now = self.clock.now_ns();
+        let elapsed_ns = now.saturating_sub(self.last_ns);
+        self.last_ns = now;
         self.chain.advance(elapsed_ns);
         self.chain.transfer(tx, rx);
         Ok(())
@@ -244,7 +294,7 @@ pub fn chain_driver(
     _cs: ChainCs,
     _tim: ChainGapTimer,
     bufs: &'static mut ChainBuffers,
-    _rcc: &mut Rcc,
+    rcc: &mut Rcc,
 ) -> (ChainDriver, ChainDma) {
     let mut chain = SimChain::new(AXES);
     // The last axis has a home switch: a cam on its shaft presses SW below
@@ -255,10 +305,13 @@ pub fn chain_driver(
             nc: false,
         }));
     }
+    let mut clock = HostClock::start(rcc);
+    let last_ns = clock.now_ns();
     (
         ChainDriver {
             chain,
-            last_us: clock::now_us(),
+            clock,
+            last_ns,
         },
         ChainDma { bufs, done: None },
     )
@@ -509,25 +562,27 @@ pub fn rom_bootloader(_rcc: &pac::RCC, _syscfg: &pac::SYSCFG) {
     defmt::warn!("reset handoff: ROM DFU bootloader requested, QEMU has none: starting normally");
 }
 
-/// Nothing to start: [`Stopwatch`] uses the monotonic (QEMU's DWT cycle
-/// counter reads 0).
+/// Nothing to start: [`Stopwatch`] uses QEMU's virtual clock (QEMU's DWT
+/// cycle counter reads 0).
 pub fn enable_stopwatch(
     _dcb: &mut cortex_m::peripheral::DCB,
     _dwt: &mut cortex_m::peripheral::DWT,
 ) {
 }
 
-/// Times a stretch of code (the control tick) on the monotonic's µs
-/// (`clock::now_us`): QEMU's DWT cycle counter reads 0.
-pub struct Stopwatch(u64);
+/// Times a stretch of code (the control tick) on QEMU's virtual clock
+/// ([`virtual_ns32`], the host's time the simulated chips live on; QEMU's
+/// DWT cycle counter reads 0, and the monotonic loses time at every
+/// SysTick wrap): spans below 4.29 s.
+pub struct Stopwatch(u32);
 
 impl Stopwatch {
     pub fn start() -> Stopwatch {
-        Stopwatch(clock::now_us())
+        Stopwatch(virtual_ns32())
     }
 
     /// µs since [`Stopwatch::start`].
     pub fn elapsed_us(&self) -> u32 {
-        u32::try_from(clock::now_us().saturating_sub(self.0)).unwrap_or(u32::MAX)
+        virtual_ns32().wrapping_sub(self.0) / 1000
     }
 }
