@@ -6,9 +6,16 @@
 //!
 //! * **Control tick**: QEMU's TIM2 counts at a fixed 1 GHz and ignores the
 //!   prescaler (with PSC = 15 and ARR = 999, the HAL's 1 kHz at HSI, it
-//!   fires every microsecond). With PSC = 0 and ARR = 10⁶ − 1 it raises its
-//!   update interrupt every 1.01 ms (measured; QEMU re-arms it from the
-//!   moment the tick is served), so the app's TIM2 task runs unchanged.
+//!   fires every microsecond). With PSC = 0 it raises its update interrupt
+//!   ARR ns after it was last armed, and QEMU re-arms it from the moment it
+//!   serves it, so every late service would shift every later tick (1.01 ms
+//!   per tick on an idle host; 1.15–1.8 ms mean measured on a busy 2-core
+//!   one: a rate the image did not keep while the chips live on the host's
+//!   time). [`TickTimer::acknowledge`] writes the gap to the next deadline
+//!   into ARR: the ticks keep their phase on QEMU's virtual clock as the
+//!   board's keep theirs on the crystal, and one served more than a period
+//!   late loses the deadlines it missed, as on the board. The app's TIM2
+//!   task runs unchanged.
 //! * **Chain**: [`ChainDriver`] holds [`AXES`] simulated powerSTEP01s and
 //!   lets them live through the time of QEMU's virtual clock ([`HostClock`],
 //!   TIM5's counter: the host's time) that passed since the last CS window,
@@ -18,8 +25,8 @@
 //!   every 100 µs wrap, 10–30 % behind the host: chips whose ramps, in the
 //!   bridge's time, were 0.7–1.2 × the profile's instead of 1.5 ×, and could
 //!   not follow its braking.) The bridge's clock counts ticks, so the two
-//!   drift apart by the timer's 1 %, as a board's MCU and chip
-//!   oscillators do.
+//!   drift apart by what the ticks lose, as a board's MCU and chip
+//!   oscillators do by theirs.
 //!   [`ChainDma`] has the board's DMA driver's API but clocks a batch's
 //!   windows through those chips at once in `start` and hands them over at
 //!   the next `poll`, so the app's pipelined control tick runs unchanged
@@ -129,34 +136,82 @@ pub enum TimerError {
 }
 
 /// TIM2 as the control-loop timer, programmed for QEMU's timer model
-/// (module docs): its update interrupt is the control tick, as on the board.
-pub struct TickTimer(board::ControlTimer);
+/// (module docs): its update interrupt is the control tick, as on the
+/// board, and on the board's phase: every deadline is a whole number of
+/// periods after the start on QEMU's virtual clock.
+pub struct TickTimer {
+    tim: board::ControlTimer,
+    /// The period, ns of QEMU's virtual clock (TIM2's CNT at 1 GHz).
+    period: u32,
+    /// CNT at the next deadline.
+    next: u32,
+}
+
+/// A deadline closer than this (ns) when the tick is served is lost
+/// instead of firing at once after it (its interrupt would have come
+/// while the flag was still set).
+const TICK_MIN_GAP_NS: u32 = 20_000;
 
 impl TickTimer {
     pub fn new(tim: board::ControlTimer, rcc: &mut Rcc) -> TickTimer {
         board::ControlTimer::enable(rcc);
         board::ControlTimer::reset(rcc);
-        TickTimer(tim)
+        TickTimer {
+            tim,
+            period: 0,
+            next: 0,
+        }
     }
 
-    /// Interrupt every `1 / hz` s (plus QEMU's re-arm latency).
+    /// Interrupt every `1 / hz` s.
     pub fn start(&mut self, hz: u32) -> Result<(), TimerError> {
-        let arr = TIMER_HZ
+        let period = TIMER_HZ
             .checked_div(hz)
-            .and_then(|ticks| ticks.checked_sub(1))
-            .filter(|&arr| arr > 0)
+            .filter(|&p| p > TICK_MIN_GAP_NS)
             .ok_or(TimerError::WrongRate)?;
-        let tim = &self.0;
+        let tim = &self.tim;
         tim.psc().write(|w| w.psc().set(0));
-        tim.arr().write(|w| w.arr().set(arr));
+        self.next = tim.cnt().read().bits().wrapping_add(period);
+        self.period = period;
+        tim.arr().write(|w| w.arr().set(period - 1));
         tim.dier().write(|w| w.uie().set_bit());
         tim.cr1().write(|w| w.cen().set_bit());
         Ok(())
     }
 
-    /// Clear the update flag (first thing in the interrupt).
+    /// Clear the update flag (first thing in the interrupt) and arm the
+    /// next deadline. QEMU 7.2's model re-arms the timer a period after the
+    /// moment it serves it, so every late service would shift every later
+    /// tick (1 % on an idle host, up to 40 % measured on a busy 2-core one:
+    /// a rate the image cannot keep, while the chips live on the host's
+    /// time). Writing ARR arms it `ARR` ns after the write, so the gap to
+    /// the next deadline goes there: ticks stay on their phase, and a
+    /// tick served more than a period late loses the deadlines it missed,
+    /// as a board's timer does (one pending update flag).
     pub fn acknowledge(&mut self) {
-        self.0.sr().write(|w| w.uif().clear_bit());
+        let tim = &self.tim;
+        tim.sr().write(|w| w.uif().clear_bit());
+        if self.period == 0 {
+            return;
+        }
+        let now = tim.cnt().read().bits();
+        // How far past the deadline, in [0, 2³¹) (before it: an early
+        // interrupt, the deadline stands).
+        let late = now.wrapping_sub(self.next);
+        if late < 1 << 31 {
+            let missed = late / self.period;
+            self.next = self
+                .next
+                .wrapping_add(missed.wrapping_add(1).wrapping_mul(self.period));
+        }
+        let now = tim.cnt().read().bits();
+        let mut gap = self.next.wrapping_sub(now);
+        if gap < TICK_MIN_GAP_NS || gap > self.period {
+            // Too close to arm (or the clock jumped): the next one.
+            self.next = now.wrapping_add(self.period);
+            gap = self.period;
+        }
+        tim.arr().write(|w| w.arr().set(gap));
     }
 }
 
