@@ -398,12 +398,12 @@ mod app {
         }
     }
 
-    /// Spins: no `wfi`, which stops the debug clock on some probes and gains
-    /// nothing while a 1 kHz tick keeps waking the core.
+    /// Waits for the next interrupt the platform's way (`platform::idle_wait`:
+    /// a spin on the board, `wfi` under QEMU).
     #[idle]
     fn idle(_: idle::Context) -> ! {
         loop {
-            cortex_m::asm::nop();
+            platform::idle_wait();
         }
     }
 
