@@ -14,6 +14,7 @@
 //! | `reset_flags`, `reset_cause` | RCC_CSR flags (then cleared) | 0, [`ResetCause::Unknown`] | RCC not modelled |
 //! | `Watchdog` | IWDG, 6.5 s nominal | does nothing | IWDG not modelled |
 //! | `TickTimer` | TIM2 update at the control rate (HAL) | TIM2 programmed for QEMU's timer model, each deadline armed on the period's phase | QEMU's TIM2 ignores the prescaler and re-arms from the moment it is served |
+//! | `tick_need_ns` (the tick's cost the rate is fitted to) | `rate::tick_need_ns`: SPI bytes and computation | measured per simulated chip | the simulated chips cost more than SPI bytes |
 //! | `idle_wait` | `nop` (spin) | `wfi` | a spinning QEMU takes a host core from its own timers |
 //! | `ChainDriver` (the bridge's blocking bus), `ChainDma` (the control tick's batches), `chain_driver` | SPI1 + CS polled; SPI1 by DMA2 streams 0/3, CS gaps by TIM7 (`drivers::chain_spi`) | 4 simulated powerSTEP01s that live on QEMU's virtual clock (the host's time, TIM5's counter); `ChainDma` clocks a batch through them at start and reports it over at once | no chips attached, no DMA, no TIM7 |
 //! | `Analog` | ADC1 (`drivers::analog`) | constant 24 V / 25 °C | ADC init reads calibration next to the unique ID, which HardFaults |
