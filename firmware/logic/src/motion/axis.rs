@@ -1355,32 +1355,41 @@ impl Axis {
 
     /// A `Run` (`spd`, the feed-forward `ff` plus the correction) toward
     /// the target no faster than the chip can still stop from before it,
-    /// from where the chip is estimated to be (the profile's position less
-    /// the last following error): a chip ahead of the profile (a late or
-    /// skipped tick, during which it ran on at its last speed) brakes
-    /// earlier instead of being carried past the target by the correction.
-    /// Only while the profile itself brakes onto the target in that
-    /// direction: a profile that cannot stop on it (a retarget inside the
-    /// braking distance) passes it on purpose.
+    /// from where the chip is estimated to be as the `Run` reaches it (the
+    /// profile's position at this tick's start less the last following
+    /// error): a chip ahead of the profile (a late or skipped tick, during
+    /// which it ran on at its last speed) brakes earlier instead of being
+    /// carried past the target by the correction. Only while the profile
+    /// itself can stop on the target in that direction: one that cannot
+    /// (a retarget inside the braking distance) passes it on purpose.
     fn cap_to_stop(&self, ff: i64, spd: i64) -> i64 {
-        let Mode::Position(_) = self.profile.mode() else {
+        let Mode::Position(t) = self.profile.mode() else {
             return spd;
         };
-        let target = self.target_physical();
-        let profile = self.profile_physical();
-        let chip = profile.saturating_sub(self.rb.error);
-        let (ahead, left) = if spd >= 0 {
-            (target.saturating_sub(profile), target.saturating_sub(chip))
-        } else {
-            (profile.saturating_sub(target), chip.saturating_sub(target))
-        };
-        let onto = ahead > 0
-            && (ff >= 0) == (spd >= 0)
-            && units::cap_to_stop(ff, ahead, self.stop_cap) == ff;
-        if !onto {
+        if (ff >= 0) != (spd >= 0) {
             return spd;
         }
-        units::cap_to_stop(spd, left, self.stop_cap)
+        let target = logical_to_physical(t, self.cfg.logical_shift, self.cfg.step);
+        // Where the chip should be as this Run reaches it.
+        let profile = self.rb.expected_at_read;
+        let ahead = if spd >= 0 {
+            target.saturating_sub(profile)
+        } else {
+            profile.saturating_sub(target)
+        };
+        if ahead <= 0 || !units::within(ff, units::stop_speed2(ahead, self.stop_cap)) {
+            return spd;
+        }
+        // The chip is `error` behind the profile (ahead of it if negative).
+        let e = if spd >= 0 {
+            self.rb.error
+        } else {
+            self.rb.error.saturating_neg()
+        };
+        units::cap_speed(
+            spd,
+            units::stop_speed2(ahead.saturating_add(e), self.stop_cap),
+        )
     }
 
     /// Take this tick's replies for the axis's device.

@@ -173,26 +173,48 @@ pub const fn stop_cap_q16(dec: u32, logical_shift: u8, step: StepSel) -> u64 {
 }
 
 /// Beyond this a SPEED's size no longer matters (twice SPEED_MAX, the
-/// largest `Run` the chip takes).
+/// largest `Run` the chip takes: the caller saturates the sum it caps).
 const SPEED_CAP: u64 = 1 << 21;
 
 /// `speed` (SPEED units, signed), no faster than the chip can stop from
 /// within `d` microsteps ([`stop_cap_q16`]'s `factor`; `d ≤ 0`: not at
 /// all). No division: a square root only when the cap applies.
 pub const fn cap_to_stop(speed: i64, d: i64, factor_q16: u64) -> i64 {
-    let c = speed.unsigned_abs();
-    let c = if c > SPEED_CAP { SPEED_CAP } else { c };
+    cap_speed(speed, stop_speed2(d, factor_q16))
+}
+
+/// The square of the fastest SPEED the chip stops from within `d`
+/// microsteps ([`stop_cap_q16`]'s `factor`; 0 for `d ≤ 0`, saturating at
+/// `u64::MAX`, far above any SPEED²).
+#[inline]
+pub const fn stop_speed2(d: i64, factor_q16: u64) -> u64 {
     let d = if d < 0 { 0 } else { d as u64 };
-    // cap² in SPEED² (≥ SPEED_CAP² when the product overflows).
-    let cap2 = match factor_q16.checked_mul(d) {
+    match factor_q16.checked_mul(d) {
         Some(p) => p >> 16,
         None => u64::MAX,
-    };
-    let c = if c * c <= cap2 { c } else { isqrt(cap2) };
+    }
+}
+
+/// `speed` is no faster than `√cap2` (SPEED units; a speed beyond
+/// `SPEED_CAP` counts as that).
+#[inline]
+pub const fn within(speed: i64, cap2: u64) -> bool {
+    let c = speed.unsigned_abs();
+    let c = if c > SPEED_CAP { SPEED_CAP } else { c };
+    c * c <= cap2
+}
+
+/// `speed` (SPEED units, signed), no faster than `√cap2`.
+#[inline]
+pub const fn cap_speed(speed: i64, cap2: u64) -> i64 {
+    if within(speed, cap2) {
+        return speed;
+    }
+    let c = isqrt(cap2) as i64;
     if speed < 0 {
-        -(c as i64)
+        -c
     } else {
-        c as i64
+        c
     }
 }
 
@@ -488,8 +510,11 @@ mod tests {
             assert!(c >= last && c <= 1 << 21);
             last = c;
         }
+        // Beyond twice SPEED_MAX a speed counts as that (the chip takes no
+        // more): room for it leaves any speed as it is.
         let top = stop_cap_q16(u32::MAX, 0, StepSel::Full);
-        assert_eq!(cap_to_stop(i64::MIN, i64::MAX, top), -(1 << 21));
+        assert_eq!(cap_to_stop(i64::MIN, i64::MAX, top), i64::MIN);
+        assert_eq!(cap_to_stop(i64::MAX, 1, 1 << 16), 1);
         assert_eq!(cap_to_stop(0, 1000, top), 0);
     }
 
