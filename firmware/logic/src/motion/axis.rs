@@ -319,8 +319,8 @@ pub struct Axis {
     /// Divisors of the per-tick speed conversions (follow `cfg`).
     speed_div: Divisor,
     corr_div: Divisor,
-    /// [`units::cap_to_stop`]'s factor for the profile's deceleration.
-    stop_cap: u64,
+    /// [`units::cap_to_stop`] for the profile's deceleration.
+    stop_cap: units::StopCap,
     profile: Profile,
     state: AxisState,
     limits: LimitState,
@@ -529,7 +529,7 @@ impl Axis {
                 cfg.step,
                 correction_ticks(cfg.tick_us),
             ),
-            stop_cap: units::stop_cap_q16(limits.dec, cfg.logical_shift, cfg.step),
+            stop_cap: units::StopCap::new(limits.dec, cfg.logical_shift, cfg.step),
             profile: Profile::new(cfg.tick_us, limits),
             state: AxisState::Setup(phase::HIZ),
             limits: LimitState {
@@ -933,7 +933,7 @@ impl Axis {
         if l != self.profile.limits() {
             self.profile.set_limits(l);
         }
-        self.stop_cap = units::stop_cap_q16(l.dec, self.cfg.logical_shift, self.cfg.step);
+        self.stop_cap = units::StopCap::new(l.dec, self.cfg.logical_shift, self.cfg.step);
     }
 
     fn stop_then(&mut self, after: AfterStop, cmd: Command) {
@@ -1370,26 +1370,26 @@ impl Axis {
             return spd;
         }
         let target = logical_to_physical(t, self.cfg.logical_shift, self.cfg.step);
-        // Where the chip should be as this Run reaches it.
+        // Where the chip should be as this Run reaches it, and how far
+        // behind that it is (ahead of it if negative), toward the target.
         let profile = self.rb.expected_at_read;
-        let ahead = if spd >= 0 {
-            target.saturating_sub(profile)
+        let (ahead, behind) = if spd >= 0 {
+            (target.saturating_sub(profile), self.rb.error)
         } else {
-            profile.saturating_sub(target)
+            (
+                profile.saturating_sub(target),
+                self.rb.error.saturating_neg(),
+            )
         };
-        if ahead <= 0 || !units::within(ff, units::stop_speed2(ahead, self.stop_cap)) {
+        let left = ahead.saturating_add(behind);
+        if ahead <= 0 || left > self.stop_cap.room() {
             return spd;
         }
-        // The chip is `error` behind the profile (ahead of it if negative).
-        let e = if spd >= 0 {
-            self.rb.error
-        } else {
-            self.rb.error.saturating_neg()
-        };
-        units::cap_speed(
-            spd,
-            units::stop_speed2(ahead.saturating_add(e), self.stop_cap),
-        )
+        let cap2 = self.stop_cap.speed2(left);
+        if units::within(spd, cap2) || !units::within(ff, self.stop_cap.speed2(ahead)) {
+            return spd;
+        }
+        units::cap_speed(spd, cap2)
     }
 
     /// Take this tick's replies for the axis's device.

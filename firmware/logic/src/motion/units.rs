@@ -218,6 +218,45 @@ pub const fn cap_speed(speed: i64, cap2: u64) -> i64 {
     }
 }
 
+/// [`cap_to_stop`] for one axis's deceleration, worked out when its limits
+/// change: the factor, and the room beyond which no `Run` needs a cap (the
+/// chip stops from its fastest, SPEED_MAX, within it).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StopCap {
+    factor: u64,
+    room: i64,
+}
+
+impl StopCap {
+    /// For a profile decelerating at `dec` (logical steps/s² of mode
+    /// `logical_shift`) on a chip at `step`.
+    pub const fn new(dec: u32, logical_shift: u8, step: StepSel) -> StopCap {
+        let factor = stop_cap_q16(dec, logical_shift, step);
+        // SPEED_MAX² ≤ factor · room / 2¹⁶, rounded up.
+        let room = ((SPEED_CAP / 2) * (SPEED_CAP / 2)) << 16;
+        let room = room.div_ceil(factor);
+        StopCap {
+            factor,
+            room: if room > i64::MAX as u64 {
+                i64::MAX
+            } else {
+                room as i64
+            },
+        }
+    }
+
+    /// Microsteps from which the chip stops from any `Run`.
+    pub const fn room(&self) -> i64 {
+        self.room
+    }
+
+    /// [`stop_speed2`] with this factor.
+    #[inline]
+    pub const fn speed2(&self, d: i64) -> u64 {
+        stop_speed2(d, self.factor)
+    }
+}
+
 /// ⌊√x⌋, bit by bit (x < 2⁴² where it is used: 21 rounds).
 const fn isqrt(x: u64) -> u64 {
     let mut r = 0u64;
@@ -516,6 +555,22 @@ mod tests {
         assert_eq!(cap_to_stop(i64::MIN, i64::MAX, top), i64::MIN);
         assert_eq!(cap_to_stop(i64::MAX, 1, 1 << 16), 1);
         assert_eq!(cap_to_stop(0, 1000, top), 0);
+    }
+
+    #[test]
+    fn beyond_the_room_no_run_is_capped() {
+        for (dec, shift) in [(65_535, 4), (1, 8), (u32::MAX, 0), (1000, 0)] {
+            let s = StopCap::new(dec, shift, StepSel::OneTwentyEighth);
+            let f = stop_cap_q16(dec, shift, StepSel::OneTwentyEighth);
+            let max = (1i64 << 20) - 1;
+            assert_eq!(cap_to_stop(max, s.room(), f), max, "{dec} {shift}");
+            assert!(s.room() <= 2 || cap_to_stop(max, s.room() / 2, f) < max);
+            assert_eq!(s.speed2(s.room()), stop_speed2(s.room(), f));
+        }
+        // 65 535 at 1/16 on 1/128: SPEED_MAX (15 625 full steps/s) stops in
+        // 15 625² / (2 · 5 120) = 23 842 full steps.
+        let r = StopCap::new(65_535, 4, StepSel::OneTwentyEighth).room();
+        assert!((r - 23_842 * 128).abs() < 128, "{r}");
     }
 
     #[test]
