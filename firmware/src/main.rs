@@ -135,7 +135,7 @@ mod app {
 
     /// Control-loop rate: the build setting `STEPBRIDGE_TICK_HZ` (default
     /// 1 kHz; `bridge_logic::rate`).
-    use bridge_logic::rate::{self, Rate, TickClock, TICK_HZ};
+    use bridge_logic::rate::{Rate, TickClock, TICK_HZ};
     /// STBY/RESET low time at power-up (datasheet minimum is well below).
     const RESET_PULSE_MS: u32 = 1;
     /// Wait after releasing STBY/RESET before the first SPI byte.
@@ -181,8 +181,9 @@ mod app {
         tick: TickTimer,
         /// The bridge's ms clock and the 10 Hz cadence, counted in ticks.
         clock: TickClock,
-        /// The tick rate in use (`rate::fit`: the build setting, or slower
-        /// for a chain that does not fit it).
+        /// The tick rate in use (`rate::fit_need` with the platform's cost
+        /// of a tick: the build setting, or slower for a chain that does
+        /// not fit it).
         rate: Rate,
         /// Status LED (pattern decided by the bridge).
         led: board::StatusLed,
@@ -271,8 +272,14 @@ mod app {
         let (settings, source) = load_settings(&mut store);
         // A chain whose batch and computation do not fit the build's tick
         // runs at a slower one (a skipped tick would run the motors slow).
-        let (mut bridge, rate) =
-            Bridge::new_fitted(bus, Board::REFERENCE, settings, source, TICK_HZ);
+        let (mut bridge, rate) = Bridge::new_fitted_with(
+            bus,
+            Board::REFERENCE,
+            settings,
+            source,
+            TICK_HZ,
+            platform::tick_need_ns,
+        );
         match bridge.chain_error() {
             None => info!("chain: {=usize} powerSTEP01", bridge.axes()),
             Some(e) => error!("chain: detection failed ({}), running with 0 axes", e),
@@ -283,7 +290,7 @@ mod app {
                 rate.hz,
                 TICK_HZ,
                 bridge.axes(),
-                rate::tick_need_ns(bridge.axes()) / 1000
+                platform::tick_need_ns(bridge.axes()) / 1000
             );
         }
         bridge.set_reset_cause(ResetCause::from_rcc_csr(reset_flags));
@@ -420,12 +427,12 @@ mod app {
         }
     }
 
-    /// Spins: no `wfi`, which stops the debug clock on some probes and gains
-    /// nothing while a 1 kHz tick keeps waking the core.
+    /// Waits for the next interrupt the platform's way (`platform::idle_wait`:
+    /// a spin on the board, `wfi` under QEMU).
     #[idle]
     fn idle(_: idle::Context) -> ! {
         loop {
-            cortex_m::asm::nop();
+            platform::idle_wait();
         }
     }
 

@@ -45,3 +45,19 @@ fn a_chain_that_fits_keeps_the_build_rate() {
     assert_eq!((r.hz, r.us, r.derated), (5000, 200, false));
     assert_eq!(b.axes(), 4);
 }
+
+#[test]
+fn a_platform_with_a_costlier_tick_fits_its_own_cost() {
+    // The QEMU image's simulated chips: ~200 µs for 4, no 5 kHz.
+    let (b, r) = Bridge::new_fitted_with(
+        SimChain::new(4),
+        Board::REFERENCE,
+        Settings::FACTORY,
+        SettingsSource::Stored,
+        5000,
+        |n| 20_000 + 45_000 * n as u64,
+    );
+    assert_eq!((r.hz, r.us, r.derated), (2500, 400, true));
+    assert_eq!(b.axes(), 4);
+    assert_eq!(b.chain().bus().windows(), windows_of_one_detection(4));
+}

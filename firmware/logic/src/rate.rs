@@ -113,7 +113,13 @@ pub const fn tick_need_ns(chips: usize) -> u64 {
 /// profile loses: a box must not run its motors slow, so it runs slower
 /// ticks instead and says so.
 pub const fn fit(hz: u32, chips: usize) -> Rate {
-    let need = tick_need_ns(chips);
+    fit_need(hz, tick_need_ns(chips))
+}
+
+/// [`fit`] for a tick that needs `need` ns (a platform whose tick costs
+/// something else than [`tick_need_ns`] says: the QEMU image's simulated
+/// chips).
+pub const fn fit_need(hz: u32, need: u64) -> Rate {
     let mut h = hz;
     loop {
         let us = 1_000_000 / h;
@@ -253,6 +259,16 @@ mod fit_tests {
                 derated: false
             }
         );
+    }
+
+    #[test]
+    fn another_cost_fits_the_same_way() {
+        assert_eq!(fit_need(5000, tick_need_ns(8)), fit(5000, 8));
+        // 200 µs does not fit 90 % of 200 µs, it fits 400 µs.
+        assert_eq!(fit_need(5000, 200_000).hz, 2500);
+        assert_eq!(fit_need(1000, 200_000).hz, 1000);
+        assert!(!fit_need(1000, 900_000).derated);
+        assert_eq!(fit_need(1000, 900_001).hz, 500);
     }
 
     #[test]

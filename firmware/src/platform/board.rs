@@ -256,6 +256,18 @@ pub fn rom_bootloader(rcc: &pac::RCC, syscfg: &pac::SYSCFG) -> ! {
     crate::drivers::mcu::jump_to_rom_bootloader(rcc, syscfg)
 }
 
+/// What a streaming control tick of `chips` costs on the board, ns: the
+/// chain's bytes on SPI1 and the computation (`rate::tick_need_ns`).
+pub fn tick_need_ns(chips: usize) -> u64 {
+    bridge_logic::rate::tick_need_ns(chips)
+}
+
+/// The idle loop's wait: a `nop` (no `wfi`, which stops the debug clock on
+/// some probes and gains nothing while a 1 kHz tick keeps waking the core).
+pub fn idle_wait() {
+    cortex_m::asm::nop();
+}
+
 /// Start the DWT cycle counter that [`Stopwatch`] reads.
 pub fn enable_stopwatch(dcb: &mut cortex_m::peripheral::DCB, dwt: &mut cortex_m::peripheral::DWT) {
     dcb.enable_trace();

@@ -13,8 +13,10 @@
 //! | `systick_hz` | SYSCLK | 168 MHz | QEMU's SysTick counts at 168 MHz whatever the clocks say |
 //! | `reset_flags`, `reset_cause` | RCC_CSR flags (then cleared) | 0, [`ResetCause::Unknown`] | RCC not modelled |
 //! | `Watchdog` | IWDG (`drivers_core::iwdg`): started in the long window (6.5 s nominal), then fed in the bridge's (`feed_in`: short, 25 ms, whenever an axis may move; long only around a save's erase) | does nothing; every window "in effect" | IWDG not modelled |
-//! | `TickTimer` | TIM2 update at the control rate (HAL) | TIM2 programmed for QEMU's timer model | QEMU's TIM2 ignores the prescaler |
-//! | `ChainDriver` (the bridge's blocking bus), `ChainDma` (the control tick's batches), `chain_driver` | SPI1 + CS polled; SPI1 by DMA2 streams 0/3, CS gaps by TIM7 (`drivers::chain_spi`) | 4 simulated powerSTEP01s that live on the monotonic's time; `ChainDma` clocks a batch through them at start and reports it over at once | no chips attached, no DMA, no TIM7 |
+//! | `TickTimer` | TIM2 update at the control rate (HAL) | TIM2 programmed for QEMU's timer model, each deadline armed on the period's phase | QEMU's TIM2 ignores the prescaler and re-arms from the moment it is served |
+//! | `tick_need_ns` (the tick's cost the rate is fitted to) | `rate::tick_need_ns`: SPI bytes and computation | measured per simulated chip | the simulated chips cost more than SPI bytes |
+//! | `idle_wait` | `nop` (spin) | `wfi` | a spinning QEMU takes a host core from its own timers |
+//! | `ChainDriver` (the bridge's blocking bus), `ChainDma` (the control tick's batches), `chain_driver` | SPI1 + CS polled; SPI1 by DMA2 streams 0/3, CS gaps by TIM7 (`drivers::chain_spi`) | 4 simulated powerSTEP01s that live on QEMU's virtual clock (the host's time, TIM5's counter); `ChainDma` clocks a batch through them at start and reports it over at once | no chips attached, no DMA, no TIM7 |
 //! | `Analog` | ADC1 (`drivers::analog`) | constant 24 V / 25 °C | ADC init reads calibration next to the unique ID, which HardFaults |
 //! | `SettingsFlash` | sectors 10 and 11 (`drivers::flash`) | RAM copy of a host file, written through by semihosting | flash controller not modelled |
 //! | `I2cSlaveDriver` | I2C1 slave (`drivers::i2c_slave`) | takes address changes; I2C1 stays off | I2C transfers hang |
@@ -23,7 +25,7 @@
 //! | `Usb`, `start_usb` | OTG FS, PoStep60 HID (`drivers::usb`) | never started (`Usb` has no value); logs "USB: not modelled by QEMU, not started" | OTG FS unimplemented: its core reset waits for ever |
 //! | `unique_id` | the 96 bits at 0x1FFF_7A10 | a fixed id (logged) | reading 0x1FFF_7A10 HardFaults |
 //! | `rom_bootloader` | jump to ST's ROM DFU bootloader (`drivers::mcu`) | logs, returns: normal start | no system memory |
-//! | `Stopwatch`, `enable_stopwatch` (control-tick timing) | DWT cycle counter | the monotonic's µs | QEMU's cycle counter reads 0 |
+//! | `Stopwatch`, `enable_stopwatch` (control-tick timing) | DWT cycle counter | QEMU's virtual clock (TIM5's counter) | QEMU's cycle counter reads 0 |
 //! | `measure_us`, `SYSTICK_LAG_MAX_PERCENT` (on-target tests) | DWT cycle counter; SysTick exact | host clock (semihosting); SysTick up to 50 % slow | QEMU's cycle counter reads 0; its SysTick re-arms late |
 //! | defmt transport | RTT (probe) | semihosting stdout | no probe |
 //!

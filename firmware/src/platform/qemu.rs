@@ -6,14 +6,30 @@
 //!
 //! * **Control tick**: QEMU's TIM2 counts at a fixed 1 GHz and ignores the
 //!   prescaler (with PSC = 15 and ARR = 999, the HAL's 1 kHz at HSI, it
-//!   fires every microsecond). With PSC = 0 and ARR = 10⁶ − 1 it raises its
-//!   update interrupt every 1.01 ms (measured; QEMU re-arms it from the
-//!   moment the tick is served), so the app's TIM2 task runs unchanged.
+//!   fires every microsecond). With PSC = 0 it raises its update interrupt
+//!   ARR ns after it was last armed, and QEMU re-arms it from the moment it
+//!   serves it, so every late service would shift every later tick (1.01 ms
+//!   per tick on an idle host; 1.15–1.8 ms mean measured on a busy 2-core
+//!   one: a rate the image did not keep while the chips live on the host's
+//!   time). [`TickTimer::acknowledge`] writes the gap to the next deadline
+//!   into ARR: the ticks keep their phase on QEMU's virtual clock as the
+//!   board's keep theirs on the crystal, and one served more than a period
+//!   late loses the deadlines it missed, as on the board. The app's TIM2
+//!   task runs unchanged. The idle loop waits with `wfi` ([`idle_wait`]),
+//!   so QEMU does not spend a host core on an emulated spin loop, and the
+//!   tick's cost under QEMU is [`tick_need_ns`] (measured), which the rate
+//!   is fitted to.
 //! * **Chain**: [`ChainDriver`] holds [`AXES`] simulated powerSTEP01s and
-//!   lets them live through the monotonic's time that passed since the last
-//!   CS window, as real chips run on their own oscillator whatever the
-//!   control loop does. The bridge's clock counts ticks, so the two drift
-//!   apart by the timer's 1 %, as a board's MCU and chip oscillators do.
+//!   lets them live through the time of QEMU's virtual clock ([`HostClock`],
+//!   TIM5's counter: the host's time) that passed since the last CS window,
+//!   as real chips run on real time whatever the control loop does: a late
+//!   or lost tick is one they run through at their last `Run` speed, as on a
+//!   board. (They lived on the SysTick monotonic before, which loses time at
+//!   every 100 µs wrap, 10–30 % behind the host: chips whose ramps, in the
+//!   bridge's time, were 0.7–1.2 × the profile's instead of 1.5 ×, and could
+//!   not follow its braking.) The bridge's clock counts ticks, so the two
+//!   drift apart by what the ticks lose, as a board's MCU and chip
+//!   oscillators do by theirs.
 //!   [`ChainDma`] has the board's DMA driver's API but clocks a batch's
 //!   windows through those chips at once in `start` and hands them over at
 //!   the next `poll`, so the app's pipelined control tick runs unchanged
@@ -58,7 +74,6 @@ use crate::board::{
     IoExtTimerDma, SenseAdc, SupplySense,
 };
 use crate::drivers::chain_spi::{ChainBuffers, ChainSpiError};
-use crate::drivers::clock;
 use crate::drivers::ioext_spi::{IoExtBuffers, IoExtError, Started};
 use crate::drivers::usb::Link;
 use bridge_logic::transport::usb::REPORT_LEN;
@@ -126,43 +141,136 @@ pub enum TimerError {
 }
 
 /// TIM2 as the control-loop timer, programmed for QEMU's timer model
-/// (module docs): its update interrupt is the control tick, as on the board.
-pub struct TickTimer(board::ControlTimer);
+/// (module docs): its update interrupt is the control tick, as on the
+/// board, and on the board's phase: every deadline is a whole number of
+/// periods after the start on QEMU's virtual clock.
+pub struct TickTimer {
+    tim: board::ControlTimer,
+    /// The period, ns of QEMU's virtual clock (TIM2's CNT at 1 GHz).
+    period: u32,
+    /// CNT at the next deadline.
+    next: u32,
+}
+
+/// A deadline closer than this (ns) when the tick is served is lost
+/// instead of firing at once after it (its interrupt would have come
+/// while the flag was still set).
+const TICK_MIN_GAP_NS: u32 = 20_000;
 
 impl TickTimer {
     pub fn new(tim: board::ControlTimer, rcc: &mut Rcc) -> TickTimer {
         board::ControlTimer::enable(rcc);
         board::ControlTimer::reset(rcc);
-        TickTimer(tim)
+        TickTimer {
+            tim,
+            period: 0,
+            next: 0,
+        }
     }
 
-    /// Interrupt every `1 / hz` s (plus QEMU's re-arm latency).
+    /// Interrupt every `1 / hz` s.
     pub fn start(&mut self, hz: u32) -> Result<(), TimerError> {
-        let arr = TIMER_HZ
+        let period = TIMER_HZ
             .checked_div(hz)
-            .and_then(|ticks| ticks.checked_sub(1))
-            .filter(|&arr| arr > 0)
+            .filter(|&p| p > TICK_MIN_GAP_NS)
             .ok_or(TimerError::WrongRate)?;
-        let tim = &self.0;
+        let tim = &self.tim;
         tim.psc().write(|w| w.psc().set(0));
-        tim.arr().write(|w| w.arr().set(arr));
+        self.next = tim.cnt().read().bits().wrapping_add(period);
+        self.period = period;
+        tim.arr().write(|w| w.arr().set(period - 1));
         tim.dier().write(|w| w.uie().set_bit());
         tim.cr1().write(|w| w.cen().set_bit());
         Ok(())
     }
 
-    /// Clear the update flag (first thing in the interrupt).
+    /// Clear the update flag (first thing in the interrupt) and arm the
+    /// next deadline. QEMU 7.2's model re-arms the timer a period after the
+    /// moment it serves it, so every late service would shift every later
+    /// tick (1 % on an idle host, up to 40 % measured on a busy 2-core one:
+    /// a rate the image cannot keep, while the chips live on the host's
+    /// time). Writing ARR arms it `ARR` ns after the write, so the gap to
+    /// the next deadline goes there: ticks stay on their phase, and a
+    /// tick served more than a period late loses the deadlines it missed,
+    /// as a board's timer does (one pending update flag).
     pub fn acknowledge(&mut self) {
-        self.0.sr().write(|w| w.uif().clear_bit());
+        let tim = &self.tim;
+        tim.sr().write(|w| w.uif().clear_bit());
+        if self.period == 0 {
+            return;
+        }
+        let now = tim.cnt().read().bits();
+        // How far past the deadline, in [0, 2³¹) (before it: an early
+        // interrupt, the deadline stands).
+        let late = now.wrapping_sub(self.next);
+        if late < 1 << 31 {
+            let missed = late / self.period;
+            self.next = self
+                .next
+                .wrapping_add(missed.wrapping_add(1).wrapping_mul(self.period));
+        }
+        let now = tim.cnt().read().bits();
+        let mut gap = self.next.wrapping_sub(now);
+        if gap < TICK_MIN_GAP_NS || gap > self.period {
+            // Too close to arm (or the clock jumped): the next one.
+            self.next = now.wrapping_add(self.period);
+            gap = self.period;
+        }
+        tim.arr().write(|w| w.arr().set(gap));
     }
 }
 
-/// The chain stand-in: [`AXES`] simulated chips that live on the
-/// monotonic's time (module docs).
+/// QEMU's virtual clock, ns, 32 bits (wraps every 4.29 s): TIM5's counter.
+/// QEMU 7.2's STM32 timer model computes CNT from its virtual clock at
+/// 1 GHz on every read (PSC = 0): without `-icount` that is the host's
+/// time. TIM5 is not used on the board; [`HostClock::start`] starts it.
+fn virtual_ns32() -> u32 {
+    // SAFETY: a read of TIM5's counter, which has no side effect; TIM5 is
+    // otherwise only written once, by `HostClock::start`.
+    unsafe { pac::TIM5::steal() }.cnt().read().bits()
+}
+
+/// QEMU's virtual clock (the host's time) in ns, unwrapped from
+/// [`virtual_ns32`] against the previous read: read at least every 4.29 s
+/// (every control tick reads it). The simulated chips live on it, as a
+/// board's chips live on real time.
+pub struct HostClock {
+    raw: u32,
+    ns: u64,
+}
+
+impl HostClock {
+    fn start(rcc: &mut Rcc) -> HostClock {
+        pac::TIM5::enable(rcc);
+        // SAFETY: nothing else in the firmware uses TIM5 (the app never
+        // takes it out of `pac::Peripherals`): this is its only set-up.
+        let tim = unsafe { pac::TIM5::steal() };
+        tim.psc().write(|w| w.psc().set(0));
+        tim.cr1().write(|w| w.cen().set_bit());
+        HostClock {
+            raw: virtual_ns32(),
+            ns: 0,
+        }
+    }
+
+    /// ns since [`HostClock::start`].
+    pub fn now_ns(&mut self) -> u64 {
+        let raw = virtual_ns32();
+        self.ns = self
+            .ns
+            .saturating_add(u64::from(raw.wrapping_sub(self.raw)));
+        self.raw = raw;
+        self.ns
+    }
+}
+
+/// The chain stand-in: [`AXES`] simulated chips that live on QEMU's
+/// virtual clock, the host's time (module docs).
 pub struct ChainDriver {
     chain: SimChain,
-    /// `clock::now_us` at the last window.
-    last_us: u64,
+    clock: HostClock,
+    /// `clock` at the last window, ns.
+    last_ns: u64,
 }
 
 impl ChainDriver {
@@ -177,9 +285,9 @@ impl ChainBus for ChainDriver {
     type Error = ChainSpiError;
 
     fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), ChainSpiError> {
-        let now = clock::now_us();
-        let elapsed_ns = now.saturating_sub(self.last_us).saturating_mul(1_000);
-        self.last_us = now;
+        let now = self.clock.now_ns();
+        let elapsed_ns = now.saturating_sub(self.last_ns);
+        self.last_ns = now;
         self.chain.advance(elapsed_ns);
         self.chain.transfer(tx, rx);
         Ok(())
@@ -246,7 +354,7 @@ pub fn chain_driver(
     _cs: ChainCs,
     _tim: ChainGapTimer,
     bufs: &'static mut ChainBuffers,
-    _rcc: &mut Rcc,
+    rcc: &mut Rcc,
 ) -> (ChainDriver, ChainDma) {
     let mut chain = SimChain::new(AXES);
     // The last axis has a home switch: a cam on its shaft presses SW below
@@ -257,10 +365,13 @@ pub fn chain_driver(
             nc: false,
         }));
     }
+    let mut clock = HostClock::start(rcc);
+    let last_ns = clock.now_ns();
     (
         ChainDriver {
             chain,
-            last_us: clock::now_us(),
+            clock,
+            last_ns,
         },
         ChainDma { bufs, done: None },
     )
@@ -511,25 +622,52 @@ pub fn rom_bootloader(_rcc: &pac::RCC, _syscfg: &pac::SYSCFG) {
     defmt::warn!("reset handoff: ROM DFU bootloader requested, QEMU has none: starting normally");
 }
 
-/// Nothing to start: [`Stopwatch`] uses the monotonic (QEMU's DWT cycle
-/// counter reads 0).
+/// What a streaming control tick costs under QEMU, ns: fixed, and per
+/// simulated chip (clocking its windows through the powerSTEP01 model is
+/// most of it). Measured with [`Stopwatch`] on a shared 2-core host, 4
+/// axes streaming: median 60–70 µs, 90th percentile 150–180 µs, 99th
+/// 530–630 µs (the host preempting QEMU); the 90th is taken. So 1 kHz keeps
+/// 80 % of the period free and a 5 kHz build runs at 2.5 kHz.
+pub const TICK_NS_FIXED: u64 = 20_000;
+pub const TICK_NS_PER_CHIP: u64 = 45_000;
+
+/// [`TICK_NS_FIXED`] + [`TICK_NS_PER_CHIP`] per chip (the board's is
+/// `rate::tick_need_ns`, SPI bytes).
+pub fn tick_need_ns(chips: usize) -> u64 {
+    TICK_NS_FIXED + TICK_NS_PER_CHIP * chips as u64
+}
+
+/// The idle loop's wait: `wfi`. QEMU's CPU then sleeps until the next
+/// interrupt instead of emulating a spin loop at 100 % of a host core,
+/// which on a busy host delays QEMU's own timer thread and with it every
+/// tick (measured on a shared 2-core host, the same hour, each tick re-armed
+/// from its service: mean period 1.15–1.8 ms spinning, 1.03–1.45 ms with
+/// `wfi`).
+pub fn idle_wait() {
+    cortex_m::asm::wfi();
+}
+
+/// Nothing to start: [`Stopwatch`] uses QEMU's virtual clock (QEMU's DWT
+/// cycle counter reads 0).
 pub fn enable_stopwatch(
     _dcb: &mut cortex_m::peripheral::DCB,
     _dwt: &mut cortex_m::peripheral::DWT,
 ) {
 }
 
-/// Times a stretch of code (the control tick) on the monotonic's µs
-/// (`clock::now_us`): QEMU's DWT cycle counter reads 0.
-pub struct Stopwatch(u64);
+/// Times a stretch of code (the control tick) on QEMU's virtual clock
+/// ([`virtual_ns32`], the host's time the simulated chips live on; QEMU's
+/// DWT cycle counter reads 0, and the monotonic loses time at every
+/// SysTick wrap): spans below 4.29 s.
+pub struct Stopwatch(u32);
 
 impl Stopwatch {
     pub fn start() -> Stopwatch {
-        Stopwatch(clock::now_us())
+        Stopwatch(virtual_ns32())
     }
 
     /// µs since [`Stopwatch::start`].
     pub fn elapsed_us(&self) -> u32 {
-        u32::try_from(clock::now_us().saturating_sub(self.0)).unwrap_or(u32::MAX)
+        virtual_ns32().wrapping_sub(self.0) / 1000
     }
 }

@@ -364,8 +364,29 @@ impl<B: ChainBus> Bridge<B> {
         source: SettingsSource,
         build_hz: u32,
     ) -> (Bridge<B>, crate::rate::Rate) {
+        Self::new_fitted_with(
+            bus,
+            board,
+            settings,
+            source,
+            build_hz,
+            crate::rate::tick_need_ns,
+        )
+    }
+
+    /// [`Bridge::new_fitted`] with the platform's cost of a streaming tick
+    /// of `n` chips, ns ([`crate::rate::fit_need`]): the QEMU image's
+    /// simulated chips cost more than the board's bytes on SPI.
+    pub fn new_fitted_with(
+        bus: B,
+        board: Board,
+        settings: Settings,
+        source: SettingsSource,
+        build_hz: u32,
+        need_ns: fn(usize) -> u64,
+    ) -> (Bridge<B>, crate::rate::Rate) {
         let (chain, n, chain_error) = Self::detect(bus);
-        let rate = crate::rate::fit(build_hz, n);
+        let rate = crate::rate::fit_need(build_hz, need_ns(n));
         let bridge = Self::build(chain, n, chain_error, board, settings, source, rate.us);
         (bridge, rate)
     }

@@ -28,7 +28,11 @@
 //!   sends SoftStop, waits for the chip to report not-busy, then sends
 //!   `GoTo(target)`: the chip covers the last few microsteps itself and cannot
 //!   overshoot. The axis is settled when STATUS says not busy and ABS_POS
-//!   equals the target.
+//!   equals the target. A `Run` toward the target is never faster than the
+//!   chip can still stop from before it, from where it is estimated to be
+//!   (`units::cap_to_stop`): a chip that got ahead of the profile (a late
+//!   or skipped tick, which it ran through at its last speed) brakes
+//!   earlier, and passes the target by no more than it ran in that time.
 //! * **Every accepted command takes effect, in order.** A stop or Set zero
 //!   in progress never discards a target, speed or zero given after it: when
 //!   the chip has stopped, the profile is re-based (to the chip's position,
@@ -350,6 +354,8 @@ pub struct Axis {
     /// Divisors of the per-tick speed conversions (follow `cfg`).
     speed_div: Divisor,
     corr_div: Divisor,
+    /// [`units::cap_to_stop`] for the profile's deceleration.
+    stop_cap: units::StopCap,
     profile: Profile,
     state: AxisState,
     limits: LimitState,
@@ -560,6 +566,7 @@ impl Axis {
                 cfg.step,
                 correction_ticks(cfg.tick_us),
             ),
+            stop_cap: units::StopCap::new(limits.dec, cfg.logical_shift, cfg.step),
             profile: Profile::new(cfg.tick_us, limits),
             state: AxisState::Setup(phase::HIZ),
             limits: LimitState {
@@ -970,6 +977,7 @@ impl Axis {
         if l != self.profile.limits() {
             self.profile.set_limits(l);
         }
+        self.stop_cap = units::StopCap::new(l.dec, self.cfg.logical_shift, self.cfg.step);
     }
 
     fn stop_then(&mut self, after: AfterStop, cmd: Command) {
@@ -1472,7 +1480,7 @@ impl Axis {
         }
         let ff = units::speed_reg_with(self.profile.velocity_internal(), self.speed_div);
         let corr = units::correction_reg_with(self.rb.error, self.corr_div);
-        let spd = ff + corr;
+        let spd = self.cap_to_stop(ff, ff + corr);
         let dir = if spd < 0 || (spd == 0 && ff < 0) {
             Direction::Reverse
         } else {
@@ -1488,6 +1496,45 @@ impl Axis {
                 Direction::Reverse => -i64::from(mag),
             };
         }
+    }
+
+    /// A `Run` (`spd`, the feed-forward `ff` plus the correction) toward
+    /// the target no faster than the chip can still stop from before it,
+    /// from where the chip is estimated to be as the `Run` reaches it (the
+    /// profile's position at this tick's start less the last following
+    /// error): a chip ahead of the profile (a late or skipped tick, during
+    /// which it ran on at its last speed) brakes earlier instead of being
+    /// carried past the target by the correction. Only while the profile
+    /// itself can stop on the target in that direction: one that cannot
+    /// (a retarget inside the braking distance) passes it on purpose.
+    fn cap_to_stop(&self, ff: i64, spd: i64) -> i64 {
+        let Mode::Position(t) = self.profile.mode() else {
+            return spd;
+        };
+        if (ff >= 0) != (spd >= 0) {
+            return spd;
+        }
+        let target = logical_to_physical(t, self.cfg.logical_shift, self.cfg.step);
+        // Where the chip should be as this Run reaches it, and how far
+        // behind that it is (ahead of it if negative), toward the target.
+        let profile = self.rb.expected_at_read;
+        let (ahead, behind) = if spd >= 0 {
+            (target.saturating_sub(profile), self.rb.error)
+        } else {
+            (
+                profile.saturating_sub(target),
+                self.rb.error.saturating_neg(),
+            )
+        };
+        let left = ahead.saturating_add(behind);
+        if ahead <= 0 || left > self.stop_cap.room() {
+            return spd;
+        }
+        let cap2 = self.stop_cap.speed2(left);
+        if units::within(spd, cap2) || !units::within(ff, self.stop_cap.speed2(ahead)) {
+            return spd;
+        }
+        units::cap_speed(spd, cap2)
     }
 
     /// Take this tick's replies for the axis's device.

@@ -138,6 +138,149 @@ pub const fn correction_speed_reg(e: i64, tick_us: u32, step: StepSel, ticks: i6
     (e << 26) / (div << step.shift())
 }
 
+/// The deceleration a move's last stretch may ask of the chip, as a share of
+/// the profile's (5/4): the chip's DEC is [`RAMP_HEADROOM_NUM`] /
+/// [`RAMP_HEADROOM_DEN`] of the profile's, and the rest is the margin for
+/// the loop's delay (the position the cap is worked out from is 1 to 3
+/// ticks old) and a chip oscillator up to 10 % slow (its ramps then take
+/// 1/0.9² as long).
+pub const STOP_RAMP_NUM: u64 = 5;
+pub const STOP_RAMP_DEN: u64 = 4;
+
+/// The factor of [`cap_to_stop`] for a profile decelerating at `dec`
+/// (logical steps/s² of mode `logical_shift`) on a chip at `step`: the
+/// fastest `Run` (SPEED units) from which the chip still stops within `d`
+/// microsteps is `√(factor · d / 2¹⁶)` (`v² = 2·a·d`, `a = dec ·
+/// STOP_RAMP_NUM / STOP_RAMP_DEN`).
+///
+/// In full steps: `v = √(2·a·d / 2^S)` steps/s, SPEED = `v · 2²⁶ / 10⁶`, so
+/// `SPEED² = 2·a·d · 2^(52 − L − S) / 10¹²` for `a` in logical steps/s²; in
+/// Q16 `2^(69 − L − S)`. At most `2³² · 5/4 · 2⁶⁹ / 10¹²` < 2⁶³ (worked out
+/// once per change of limits: a 128-bit division).
+pub const fn stop_cap_q16(dec: u32, logical_shift: u8, step: StepSel) -> u64 {
+    let dec = if dec == 0 { 1 } else { dec };
+    let l = if logical_shift > MAX_LOGICAL_SHIFT {
+        MAX_LOGICAL_SHIFT
+    } else {
+        logical_shift
+    };
+    let shift = 69 - l as u32 - step.shift();
+    let f = ((dec as u128 * STOP_RAMP_NUM as u128) << shift)
+        / (STOP_RAMP_DEN as u128 * 1_000_000_000_000);
+    if f > u64::MAX as u128 {
+        u64::MAX
+    } else if f == 0 {
+        1
+    } else {
+        f as u64
+    }
+}
+
+/// Beyond this a SPEED's size no longer matters (twice SPEED_MAX, the
+/// largest `Run` the chip takes: the caller saturates the sum it caps).
+const SPEED_CAP: u64 = 1 << 21;
+
+/// `speed` (SPEED units, signed), no faster than the chip can stop from
+/// within `d` microsteps ([`stop_cap_q16`]'s `factor`; `d ≤ 0`: not at
+/// all). No division: a square root only when the cap applies.
+pub const fn cap_to_stop(speed: i64, d: i64, factor_q16: u64) -> i64 {
+    cap_speed(speed, stop_speed2(d, factor_q16))
+}
+
+/// The square of the fastest SPEED the chip stops from within `d`
+/// microsteps ([`stop_cap_q16`]'s `factor`; 0 for `d ≤ 0`, saturating at
+/// `u64::MAX`, far above any SPEED²).
+#[inline]
+pub const fn stop_speed2(d: i64, factor_q16: u64) -> u64 {
+    let d = if d < 0 { 0 } else { d as u64 };
+    match factor_q16.checked_mul(d) {
+        Some(p) => p >> 16,
+        None => u64::MAX,
+    }
+}
+
+/// `speed` is no faster than `√cap2` (SPEED units; a speed beyond
+/// `SPEED_CAP` counts as that).
+#[inline]
+pub const fn within(speed: i64, cap2: u64) -> bool {
+    let c = speed.unsigned_abs();
+    let c = if c > SPEED_CAP { SPEED_CAP } else { c };
+    c * c <= cap2
+}
+
+/// `speed` (SPEED units, signed), no faster than `√cap2`.
+#[inline]
+pub const fn cap_speed(speed: i64, cap2: u64) -> i64 {
+    if within(speed, cap2) {
+        return speed;
+    }
+    let c = isqrt(cap2) as i64;
+    if speed < 0 {
+        -c
+    } else {
+        c
+    }
+}
+
+/// [`cap_to_stop`] for one axis's deceleration, worked out when its limits
+/// change: the factor, and the room beyond which no `Run` needs a cap (the
+/// chip stops from its fastest, SPEED_MAX, within it).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct StopCap {
+    factor: u64,
+    room: i64,
+}
+
+impl StopCap {
+    /// For a profile decelerating at `dec` (logical steps/s² of mode
+    /// `logical_shift`) on a chip at `step`.
+    pub const fn new(dec: u32, logical_shift: u8, step: StepSel) -> StopCap {
+        let factor = stop_cap_q16(dec, logical_shift, step);
+        // SPEED_MAX² ≤ factor · room / 2¹⁶, rounded up.
+        let room = ((SPEED_CAP / 2) * (SPEED_CAP / 2)) << 16;
+        let room = room.div_ceil(factor);
+        StopCap {
+            factor,
+            room: if room > i64::MAX as u64 {
+                i64::MAX
+            } else {
+                room as i64
+            },
+        }
+    }
+
+    /// Microsteps from which the chip stops from any `Run`.
+    pub const fn room(&self) -> i64 {
+        self.room
+    }
+
+    /// [`stop_speed2`] with this factor.
+    #[inline]
+    pub const fn speed2(&self, d: i64) -> u64 {
+        stop_speed2(d, self.factor)
+    }
+}
+
+/// ⌊√x⌋, bit by bit (x < 2⁴² where it is used: 21 rounds).
+const fn isqrt(x: u64) -> u64 {
+    let mut r = 0u64;
+    let mut bit = 1u64 << 62;
+    while bit > x {
+        bit >>= 2;
+    }
+    let mut x = x;
+    while bit != 0 {
+        if x >= r + bit {
+            x -= r + bit;
+            r = (r >> 1) + bit;
+        } else {
+            r >>= 1;
+        }
+        bit >>= 2;
+    }
+    r
+}
+
 /// The MAX_SPEED register a profile max speed (logical steps/s) needs, not
 /// capped at the register's 10 bits: the backstop 25 % + 16 full steps/s
 /// above it, rounded to nearest (at least 1).
@@ -407,6 +550,64 @@ mod tests {
             correction_speed_reg(-128, 1000, StepSel::OneTwentyEighth, 8),
             -8388
         );
+    }
+
+    #[test]
+    fn the_stop_cap_is_the_speed_the_chip_stops_from_within_the_distance() {
+        // dec 65 535 logical 1/16 steps/s² = 4095.9 full steps/s², × 5/4 =
+        // 5119.9; 10 full steps (1280 microsteps at 1/128) stop from
+        // √(2 · 5119.9 · 10) = 320.0 full steps/s = 21 474.6 SPEED.
+        let f = stop_cap_q16(65_535, 4, StepSel::OneTwentyEighth);
+        assert!((cap_to_stop(1_000_000, 1280, f) - 21_474).abs() <= 1);
+        assert!((cap_to_stop(-1_000_000, 1280, f) + 21_474).abs() <= 1);
+        // Slower Runs are left alone; nothing left: no Run toward it.
+        assert_eq!(cap_to_stop(21_000, 1280, f), 21_000);
+        assert_eq!(cap_to_stop(-5, 1280, f), -5);
+        assert_eq!(cap_to_stop(500, 0, f), 0);
+        assert_eq!(cap_to_stop(500, -40, f), 0);
+        // The same in full steps on a full-step chip: one full step = one microstep.
+        let g = stop_cap_q16(65_535 / 16, 0, StepSel::Full);
+        assert!((cap_to_stop(1_000_000, 10, g) - 21_474).abs() <= 3);
+        // Never faster for less room; saturating for any input.
+        let mut last = 0;
+        for d in (0..200_000).step_by(997) {
+            let c = cap_to_stop(i64::MAX, d, f);
+            assert!(c >= last && c <= 1 << 21);
+            last = c;
+        }
+        // Beyond twice SPEED_MAX a speed counts as that (the chip takes no
+        // more): room for it leaves any speed as it is.
+        let top = stop_cap_q16(u32::MAX, 0, StepSel::Full);
+        assert_eq!(cap_to_stop(i64::MIN, i64::MAX, top), i64::MIN);
+        assert_eq!(cap_to_stop(i64::MAX, 1, 1 << 16), 1);
+        assert_eq!(cap_to_stop(0, 1000, top), 0);
+    }
+
+    #[test]
+    fn beyond_the_room_no_run_is_capped() {
+        for (dec, shift) in [(65_535, 4), (1, 8), (u32::MAX, 0), (1000, 0)] {
+            let s = StopCap::new(dec, shift, StepSel::OneTwentyEighth);
+            let f = stop_cap_q16(dec, shift, StepSel::OneTwentyEighth);
+            let max = (1i64 << 20) - 1;
+            assert_eq!(cap_to_stop(max, s.room(), f), max, "{dec} {shift}");
+            assert!(s.room() <= 2 || cap_to_stop(max, s.room() / 2, f) < max);
+            assert_eq!(s.speed2(s.room()), stop_speed2(s.room(), f));
+        }
+        // 65 535 at 1/16 on 1/128: SPEED_MAX (15 625 full steps/s) stops in
+        // 15 625² / (2 · 5 120) = 23 842 full steps.
+        let r = StopCap::new(65_535, 4, StepSel::OneTwentyEighth).room();
+        assert!((r - 23_842 * 128).abs() < 128, "{r}");
+    }
+
+    #[test]
+    fn integer_square_roots_are_floors() {
+        for x in (0..5_000u64).chain([1 << 40, (1 << 42) - 1, 1 << 42, u64::MAX]) {
+            let r = isqrt(x);
+            assert!(
+                r * r <= x && (r + 1).checked_mul(r + 1).is_none_or(|s| s > x),
+                "{x}"
+            );
+        }
     }
 
     #[test]
