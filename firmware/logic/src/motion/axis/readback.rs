@@ -1,0 +1,123 @@
+//! The chip's replies: positions unwrapped, STATUS decoded (resets, faults,
+//! stalls, refusals), extension-space register reads.
+
+use super::*;
+
+impl Axis {
+    /// Take this tick's replies for the axis's device.
+    pub fn absorb(&mut self, replies: &Replies, device: usize) {
+        if let Some(r) = self.ext_read.as_mut() {
+            if let Some(i) = r.index.take() {
+                if let Some(crate::powerstep::chain::Reply::Param(reg, v)) = replies.get(device, i)
+                {
+                    if reg == r.reg {
+                        r.value = Some((v, self.tick));
+                    }
+                }
+            }
+        }
+        match self.rb.read.take() {
+            Some(Read::Position) => {
+                if let Some(raw) = replies.param(device, Register::AbsPos) {
+                    self.take_position(raw);
+                }
+            }
+            Some(Read::Status) => {
+                if let Some(s) = replies.status(device) {
+                    self.take_status(s);
+                }
+            }
+            None => {}
+        }
+    }
+
+    pub(super) fn take_position(&mut self, raw: u32) {
+        if matches!(self.state, AxisState::Setup(_)) {
+            return; // the chip's frame is being re-based
+        }
+        let rb = &mut self.rb;
+        if core::mem::take(&mut self.absolute_read) {
+            // The chip re-based its frame (homing): its value is the position.
+            rb.chip_pos = i64::from(sign_extend_22(raw));
+            self.rate.disarm();
+        } else {
+            let base = rb.raw.unwrap_or(wrap_22(rb.chip_pos as i32));
+            let delta = sign_extend_22(raw.wrapping_sub(base) & 0x3F_FFFF);
+            rb.chip_pos += i64::from(delta);
+            // Only while the chip follows: a chip still stopping or landing
+            // when streaming began runs its own ramps.
+            let follows = (rb.expected_at_read - rb.chip_pos).abs() <= RATE_MAX_ERROR;
+            if self.state == AxisState::Streaming && rb.raw.is_some() && follows {
+                self.rate
+                    .take(i64::from(delta), self.cfg.tick_us, self.cfg.step.shift());
+            } else {
+                self.rate.disarm();
+            }
+        }
+        let rb = &mut self.rb;
+        rb.raw = Some(raw);
+        rb.pos_at = self.tick;
+        // Measured in every state: when a move starts while the chip is
+        // still stopping or landing, the correction starts at once.
+        rb.error = if self.stop.zero {
+            0
+        } else {
+            rb.expected_at_read - rb.chip_pos
+        };
+    }
+
+    pub(super) fn take_status(&mut self, s: Status) {
+        self.rb.status = s;
+        self.rb.status_at = self.tick;
+        self.image.status_seen(s.command_error());
+        if s.uvlo() {
+            // Reset or undervoltage. In a setup, only a read issued after
+            // the setup began reports a new one (the power-up flag, or the
+            // one that started this setup, was cleared by the first read).
+            let new = match self.state {
+                AxisState::Setup(_) => self.tick > self.rb.setup_at,
+                _ => true,
+            };
+            if new {
+                self.fault = Some(AxisFault::ChipReset);
+                self.resets = self.resets.wrapping_add(1);
+                if !matches!(self.state, AxisState::Setup(_)) {
+                    // Positions read since the last clean STATUS are not
+                    // trustworthy; stop where the chip was then.
+                    self.rb.chip_pos = self.rb.pos_at_status;
+                }
+                self.restart_setup();
+                return;
+            }
+        }
+        if s.stalled() {
+            // A stall may have lost steps: the home is no longer known.
+            self.homed = false;
+        }
+        if s.overcurrent()
+            || matches!(
+                s.thermal(),
+                ThermalStatus::BridgeShutdown | ThermalStatus::DeviceShutdown
+            )
+        {
+            if self.state == AxisState::Homing {
+                self.end_homing(HomingError::Fault);
+            }
+            self.fault = Some(if s.overcurrent() {
+                AxisFault::Overcurrent
+            } else {
+                AxisFault::Thermal
+            });
+            // The power stage is in trouble: bridges off (they may already be,
+            // with OC_SD), hold where the chip is, no landing move.
+            if self.is_configured() && !self.chip_off_for_fault {
+                self.profile.stop_now();
+                self.chip_off_for_fault = true;
+                self.stop_then(AfterStop::Hold, Command::HardHiZ);
+            }
+        } else {
+            self.chip_off_for_fault = false;
+        }
+        self.rb.pos_at_status = self.rb.chip_pos;
+    }
+}
