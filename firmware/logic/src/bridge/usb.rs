@@ -112,20 +112,28 @@ impl<B: ChainBus> Bridge<B> {
         };
         self.diag.usb_reports = self.diag.usb_reports.saturating_add(1);
         self.heard(Bus::Usb);
+        if let Some(response) = self.respond(req, axis, now_ms) {
+            self.queue(response);
+        }
+    }
+
+    /// The response to a well-formed OUT report for `axis` (None: there is
+    /// none, or not yet).
+    fn respond(&mut self, req: UsbRequest, axis: u8, now_ms: u64) -> Option<InReport> {
         let k = usize::from(axis);
         let exists = k < self.axes();
-        let response = match req {
+        Some(match req {
             UsbRequest::SystemReset => {
                 let target = match self.run_mode {
                     RunMode::Application => ResetTarget::BootMode,
                     RunMode::Boot => ResetTarget::Application,
                 };
                 self.request_reset(target);
-                return;
+                return None;
             }
             UsbRequest::EnterDfu => {
                 self.request_reset(ResetTarget::RomDfu);
-                return;
+                return None;
             }
             UsbRequest::DeviceInfo => self.device_info(axis),
             UsbRequest::StreamOff => {
@@ -149,45 +157,14 @@ impl<B: ChainBus> Bridge<B> {
                 let st = self.erase();
                 InReport::new(0, 0x00, axis, st)
             }
-            UsbRequest::ResetFaults => self.simple(k, axis, Request::ResetFaults, 0x00),
-            UsbRequest::SaveOther => self.simple(k, axis, Request::WriteSettings, 0x00),
             UsbRequest::ReadOther => self.other_report(k, axis),
-            UsbRequest::StepDir {
-                step_value,
-                reverse,
-            } => self.simple(
-                k,
-                axis,
-                Request::StepDir {
-                    step_value,
-                    reverse,
-                },
-                cmd::STEP_DIR,
-            ),
-            UsbRequest::RunSleep(v) => {
-                // USB: 0x01 run, 0x00 sleep (I2C's 0xDA / 0x0F); others are
-                // ignored like I2C's other values.
-                let req = match v {
-                    0x01 => Request::RunSleep(0xDA),
-                    0x00 => Request::RunSleep(0x0F),
-                    _ => Request::RunSleep(0x00),
-                };
-                self.simple(k, axis, req, 0x00)
-            }
-            UsbRequest::SetPwm => self.simple(k, axis, Request::SetPwm, cmd::SET_PWM),
-            UsbRequest::Trajectory(t) => {
-                self.simple(k, axis, Request::Trajectory(t), cmd::TRAJECTORY)
-            }
-            UsbRequest::Stop => self.simple(k, axis, Request::Stop, 0x00),
-            UsbRequest::Zero => self.simple(k, axis, Request::SetZero, 0x00),
-            UsbRequest::WriteName(name) => {
-                let st = self.status(k, Request::SetName(name));
-                let st = if st == status::DONE {
-                    self.status(k, Request::WriteSettings)
-                } else {
-                    st
-                };
-                InReport::new(0, 0x00, axis, st)
+            UsbRequest::WriteName(name) => self.write_name(k, axis, name),
+            UsbRequest::ReadName => {
+                let mut r = InReport::new(0, cmd::WRITE_NAME, axis, status::DONE);
+                if let Some(d) = self.devices.get(k) {
+                    r.put(16, &d.settings.name);
+                }
+                r
             }
             UsbRequest::ExtRead { address, quantity } => {
                 self.usb.pending_read = Some(PendingRead {
@@ -196,10 +173,7 @@ impl<B: ChainBus> Bridge<B> {
                     quantity,
                     since_ms: now_ms,
                 });
-                match self.try_ext_read(now_ms) {
-                    Some(r) => r,
-                    None => return,
-                }
+                self.try_ext_read(now_ms)?
             }
             UsbRequest::ExtWrite {
                 address,
@@ -213,15 +187,56 @@ impl<B: ChainBus> Bridge<B> {
                 };
                 InReport::new(0, cmd::EXT_WRITE, axis, ext_status(r))
             }
-            UsbRequest::ReadName => {
-                let mut r = InReport::new(0, cmd::WRITE_NAME, axis, status::DONE);
-                if let Some(d) = self.devices.get(k) {
-                    r.put(16, &d.settings.name);
-                }
-                r
+            other => {
+                let (req, response) = Self::device_request(other)?;
+                self.simple(k, axis, req, response)
             }
+        })
+    }
+
+    /// A report that is one PoStep60 request for the axis and answers with
+    /// the command's response byte: the request and that byte.
+    fn device_request(req: UsbRequest) -> Option<(Request, u8)> {
+        Some(match req {
+            UsbRequest::ResetFaults => (Request::ResetFaults, 0x00),
+            UsbRequest::SaveOther => (Request::WriteSettings, 0x00),
+            UsbRequest::StepDir {
+                step_value,
+                reverse,
+            } => (
+                Request::StepDir {
+                    step_value,
+                    reverse,
+                },
+                cmd::STEP_DIR,
+            ),
+            // USB: 0x01 run, 0x00 sleep (I2C's 0xDA / 0x0F); others are
+            // ignored like I2C's other values.
+            UsbRequest::RunSleep(0x01) => (Request::RunSleep(0xDA), 0x00),
+            UsbRequest::RunSleep(0x00) => (Request::RunSleep(0x0F), 0x00),
+            UsbRequest::RunSleep(_) => (Request::RunSleep(0x00), 0x00),
+            UsbRequest::SetPwm => (Request::SetPwm, cmd::SET_PWM),
+            UsbRequest::Trajectory(t) => (Request::Trajectory(t), cmd::TRAJECTORY),
+            UsbRequest::Stop => (Request::Stop, 0x00),
+            UsbRequest::Zero => (Request::SetZero, 0x00),
+            _ => return None,
+        })
+    }
+
+    /// 0xC0: the custom name, stored at once (the manual's "write").
+    fn write_name(
+        &mut self,
+        k: usize,
+        axis: u8,
+        name: [u8; crate::postep60::settings::NAME_LEN],
+    ) -> InReport {
+        let st = self.status(k, Request::SetName(name));
+        let st = if st == status::DONE {
+            self.status(k, Request::WriteSettings)
+        } else {
+            st
         };
-        self.queue(response);
+        InReport::new(0, 0x00, axis, st)
     }
 
     /// Answer the waiting extension read if the chip's value came back (or

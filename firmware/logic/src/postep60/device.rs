@@ -695,48 +695,17 @@ impl Device {
         }
         match req {
             Request::Loopback(b) => self.loopback = b,
-            Request::RunSleep(0xDA) => {
-                self.running = true;
-                axis.wake();
-            }
-            Request::RunSleep(0x0F) => {
-                self.running = false;
-                axis.sleep();
-            }
-            Request::RunSleep(_) => return self.refuse(CommandError::Ignored),
+            Request::RunSleep(code) => return self.run_sleep(code, axis),
             Request::SetAddress { current, new } => {
                 return Ok(Effect::SetAddress { current, new });
             }
-            Request::SetMode(code) | Request::SetModeUsb(code) => {
-                let usb = matches!(req, Request::SetModeUsb(_));
-                match DriverMode::from_code(code) {
-                    Some(DriverMode::External) if !board.step_dir_routed => {
-                        return self.refuse(CommandError::Unsupported)
-                    }
-                    Some(DriverMode::DcMotor) => return self.refuse(CommandError::Unsupported),
-                    Some(DriverMode::StepControl) if usb => {
-                        self.set_mode(DriverMode::StepControl, axis)
-                    }
-                    Some(
-                        m @ (DriverMode::External
-                        | DriverMode::Position
-                        | DriverMode::BinButtons
-                        | DriverMode::AutoRun),
-                    ) => self.set_mode(m, axis),
-                    _ => return self.refuse(CommandError::Ignored),
-                }
-            }
+            Request::SetMode(code) => return self.select_mode(code, false, axis, board),
+            Request::SetModeUsb(code) => return self.select_mode(code, true, axis, board),
             Request::SetPwm => return self.refuse(CommandError::Unsupported),
             Request::SetFullScaleCurrent(c) => self.settings.full_scale = c.clamped(limit),
             Request::SetIdleCurrent(c) => self.settings.idle = c.clamped(limit),
             Request::SetOverheatCurrent(c) => self.settings.overheat = c.clamped(limit),
-            Request::SetStepMode(m) if m <= 8 => {
-                self.settings.step_mode = m;
-                axis.set_logical_shift(m);
-                // The same numbers mean other speeds now: clamp again.
-                self.clamp_limits(axis);
-            }
-            Request::SetStepMode(_) => return self.refuse(CommandError::Ignored),
+            Request::SetStepMode(m) => return self.set_step_mode(m, axis),
             Request::SetTemperatureLimit(t) => {
                 self.settings.temperature_limit = t.min(TEMPERATURE_LIMIT_MAX)
             }
@@ -744,18 +713,7 @@ impl Device {
             // from STATUS at the next tick if so.
             Request::ResetFaults => self.faults = 0,
             Request::WriteSettings => return Ok(Effect::SaveSettings),
-            Request::SetPosition(p) => {
-                if !matches!(
-                    self.settings.mode,
-                    DriverMode::Position | DriverMode::BinButtons
-                ) {
-                    return self.refuse(CommandError::WrongMode);
-                }
-                if let Err(e) = self.blocked() {
-                    return self.refuse(e);
-                }
-                axis.move_to(i64::from(p));
-            }
+            Request::SetPosition(p) => return self.set_position(p, axis),
             Request::SetMaxSpeed(v) => {
                 self.settings.max_speed = v;
                 self.clamp_limits(axis);
@@ -768,25 +726,8 @@ impl Device {
                 self.settings.dec = v;
                 self.clamp_limits(axis);
             }
-            Request::SetRequestedSpeed(v) => {
-                if self.settings.mode != DriverMode::AutoRun {
-                    return self.refuse(CommandError::WrongMode);
-                }
-                if let Err(e) = self.blocked() {
-                    return self.refuse(e);
-                }
-                self.settings.requested_speed = v;
-                self.run_auto(axis, v);
-            }
-            Request::SetInvert(b) => {
-                if self.settings.mode != DriverMode::AutoRun {
-                    return self.refuse(CommandError::WrongMode);
-                }
-                self.settings.invert = b & 1 != 0;
-                if self.blocked().is_ok() && !axis.profile().is_settled() {
-                    self.run_auto(axis, self.settings.requested_speed);
-                }
-            }
+            Request::SetRequestedSpeed(v) => return self.set_requested_speed(v, axis),
+            Request::SetInvert(b) => return self.set_invert(b, axis),
             Request::SetZero => axis.set_zero(),
             Request::Stop => axis.stop_now(),
             Request::SoftStop => axis.soft_stop(),
@@ -797,25 +738,127 @@ impl Device {
             Request::StepDir {
                 step_value,
                 reverse,
-            } => {
-                if self.settings.mode != DriverMode::StepControl {
-                    return self.refuse(CommandError::WrongMode);
-                }
-                if let Err(e) = self.blocked() {
-                    return self.refuse(e);
-                }
-                let reverse = reverse != self.settings.drv.mapped().reverse_step_dir;
-                // Step frequency = 480 000 Hz / StepValue (manual 10.2.11); 0 stops.
-                match STEP_DIR_CLOCK_HZ.checked_div(step_value) {
-                    None => axis.soft_stop(),
-                    Some(f) => {
-                        let v = i32::try_from(f).unwrap_or(i32::MAX);
-                        axis.run_at(if reverse { v.saturating_neg() } else { v });
-                    }
-                }
-            }
+            } => return self.step_dir(step_value, reverse, axis),
             Request::Trajectory(t) => return self.trajectory(t, axis),
             Request::SetName(name) => self.settings.name = name,
+        }
+        Ok(Effect::None)
+    }
+
+    /// 0x03: 0xDA runs (wakes), 0x0F sleeps, anything else is ignored.
+    fn run_sleep(&mut self, code: u8, axis: &mut Axis) -> Result<Effect, CommandError> {
+        match code {
+            0xDA => {
+                self.running = true;
+                axis.wake();
+            }
+            0x0F => {
+                self.running = false;
+                axis.sleep();
+            }
+            _ => return self.refuse(CommandError::Ignored),
+        }
+        Ok(Effect::None)
+    }
+
+    /// 0x05 (or USB's CONFIG_SET, which also takes 2, step control).
+    fn select_mode(
+        &mut self,
+        code: u8,
+        usb: bool,
+        axis: &mut Axis,
+        board: &Board,
+    ) -> Result<Effect, CommandError> {
+        match DriverMode::from_code(code) {
+            Some(DriverMode::External) if !board.step_dir_routed => {
+                return self.refuse(CommandError::Unsupported)
+            }
+            Some(DriverMode::DcMotor) => return self.refuse(CommandError::Unsupported),
+            Some(DriverMode::StepControl) if usb => self.set_mode(DriverMode::StepControl, axis),
+            Some(
+                m @ (DriverMode::External
+                | DriverMode::Position
+                | DriverMode::BinButtons
+                | DriverMode::AutoRun),
+            ) => self.set_mode(m, axis),
+            _ => return self.refuse(CommandError::Ignored),
+        }
+        Ok(Effect::None)
+    }
+
+    /// 0x33: 0..=8 (others ignored); the limits are clamped again, since the
+    /// same numbers mean other speeds in the new unit.
+    fn set_step_mode(&mut self, m: u8, axis: &mut Axis) -> Result<Effect, CommandError> {
+        if m > 8 {
+            return self.refuse(CommandError::Ignored);
+        }
+        self.settings.step_mode = m;
+        axis.set_logical_shift(m);
+        self.clamp_limits(axis);
+        Ok(Effect::None)
+    }
+
+    /// 0x50, in position and BINx modes.
+    fn set_position(&mut self, p: i32, axis: &mut Axis) -> Result<Effect, CommandError> {
+        if !matches!(
+            self.settings.mode,
+            DriverMode::Position | DriverMode::BinButtons
+        ) {
+            return self.refuse(CommandError::WrongMode);
+        }
+        if let Err(e) = self.blocked() {
+            return self.refuse(e);
+        }
+        axis.move_to(i64::from(p));
+        Ok(Effect::None)
+    }
+
+    /// 0x54, in auto run.
+    fn set_requested_speed(&mut self, v: u32, axis: &mut Axis) -> Result<Effect, CommandError> {
+        if self.settings.mode != DriverMode::AutoRun {
+            return self.refuse(CommandError::WrongMode);
+        }
+        if let Err(e) = self.blocked() {
+            return self.refuse(e);
+        }
+        self.settings.requested_speed = v;
+        self.run_auto(axis, v);
+        Ok(Effect::None)
+    }
+
+    /// 0x55, in auto run: a running axis turns round.
+    fn set_invert(&mut self, b: u8, axis: &mut Axis) -> Result<Effect, CommandError> {
+        if self.settings.mode != DriverMode::AutoRun {
+            return self.refuse(CommandError::WrongMode);
+        }
+        self.settings.invert = b & 1 != 0;
+        if self.blocked().is_ok() && !axis.profile().is_settled() {
+            self.run_auto(axis, self.settings.requested_speed);
+        }
+        Ok(Effect::None)
+    }
+
+    /// USB 0x90 in step control: 480 000 Hz / StepValue (manual 10.2.11; 0
+    /// stops), the direction inverted again by CTRL.RDIR.
+    fn step_dir(
+        &mut self,
+        step_value: u32,
+        reverse: bool,
+        axis: &mut Axis,
+    ) -> Result<Effect, CommandError> {
+        if self.settings.mode != DriverMode::StepControl {
+            return self.refuse(CommandError::WrongMode);
+        }
+        if let Err(e) = self.blocked() {
+            return self.refuse(e);
+        }
+        let reverse = reverse != self.settings.drv.mapped().reverse_step_dir;
+        match STEP_DIR_CLOCK_HZ.checked_div(step_value) {
+            None => axis.soft_stop(),
+            Some(f) => {
+                let v = i32::try_from(f).unwrap_or(i32::MAX);
+                axis.run_at(if reverse { v.saturating_neg() } else { v });
+            }
         }
         Ok(Effect::None)
     }
