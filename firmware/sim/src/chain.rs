@@ -15,9 +15,10 @@ use core::convert::Infallible;
 
 use heapless::Vec;
 
-use super::powerstep01::Powerstep01;
-use super::shift::ShiftChain;
-use crate::powerstep::chain::{ChainBus, MAX_DEVICES};
+use powerstep01::chain::{ChainBus, MAX_DEVICES};
+
+use crate::chip::Powerstep01;
+use crate::shift::ShiftChain;
 
 /// Bytes of the last window kept for [`SimChain::last_window`].
 pub const TRACE_LEN: usize = 64;
@@ -174,11 +175,11 @@ mod tests {
     use std::vec;
     use std::vec::Vec;
 
+    use powerstep01::{Batch, Chain, ChainError, Command, Direction, Register};
+
     use super::*;
-    use crate::powerstep::commands::{Command, Direction};
-    use crate::powerstep::registers::Register;
-    use crate::powerstep::{Batch, Chain, ChainError};
-    use crate::sim::powerstep01::Fault;
+    use crate::chip::Fault;
+    use crate::vocab;
 
     fn window(c: &mut SimChain, tx: &[u8]) -> Vec<u8> {
         let mut rx = vec![0xAA; tx.len()];
@@ -204,7 +205,7 @@ mod tests {
             window(&mut c, &tx);
             for j in 0..n {
                 let dev = c.device(n - 1 - j).unwrap();
-                let reg = Register::from_address(j as u8 + 1).unwrap();
+                let reg = vocab::register(j as u8 + 1).unwrap();
                 assert_eq!(
                     dev.received().last(),
                     Some(&Command::GetParam(reg)),
@@ -252,7 +253,7 @@ mod tests {
             }
             // Device k holds tx[l - 1 - k] at CS rise.
             for k in 0..n {
-                let reg = Register::from_address(tx[l - 1 - k] & 0x1F).unwrap();
+                let reg = vocab::register(tx[l - 1 - k] & 0x1F).unwrap();
                 let dev = c.device(k).unwrap();
                 assert_eq!(dev.received().last(), Some(&Command::GetParam(reg)));
             }
