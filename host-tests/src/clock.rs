@@ -7,7 +7,7 @@
 
 use bridge_logic::bridge::Bridge;
 use bridge_logic::ioext::Action;
-use bridge_logic::sim::SimChain;
+use stepbridge_sim::SimChain;
 
 /// A control loop that drives simulated chips.
 pub trait SimControl {
@@ -25,7 +25,7 @@ impl SimControl for Bridge<SimChain> {
         self.tick(now_ms);
         match self.take_io_action() {
             Some(Action::Transfer(plan)) => {
-                let rx = self.chain_mut().bus_mut().io_mut().transfer(&plan);
+                let rx = crate::ioext_wire::transfer(self.chain_mut().bus_mut().io_mut(), &plan);
                 let _ = self.on_io_done(&rx);
             }
             Some(Action::Disable) | None => {}

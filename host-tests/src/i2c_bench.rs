@@ -5,8 +5,8 @@
 use crate::clock::SimClock;
 use bridge_logic::bridge::Bridge;
 use bridge_logic::postep60::{Board, Settings};
-use bridge_logic::sim::SimChain;
 use bridge_logic::transport::i2c::{I2cSlave, Which};
+use stepbridge_sim::SimChain;
 
 pub use crate::sim_bridge::TICK_US;
 
@@ -86,11 +86,11 @@ impl I2cBench {
         crate::sim_bridge::settle(self, cap, |h| &h.bridge, |h| h.run(1));
     }
 
-    pub fn chip(&self, k: usize) -> &bridge_logic::sim::Powerstep01 {
+    pub fn chip(&self, k: usize) -> &stepbridge_sim::Powerstep01 {
         crate::sim_bridge::chip(&self.bridge, k)
     }
 
-    pub fn chip_mut(&mut self, k: usize) -> &mut bridge_logic::sim::Powerstep01 {
+    pub fn chip_mut(&mut self, k: usize) -> &mut stepbridge_sim::Powerstep01 {
         crate::sim_bridge::chip_mut(&mut self.bridge, k)
     }
 }

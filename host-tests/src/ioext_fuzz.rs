@@ -26,7 +26,7 @@ use bridge_logic::ioext::{
     requested_period_ns, Action, AxisOutputs, Clocks, IoExtension, IoSettings, TransferPlan,
     IMAGE_LEN,
 };
-use bridge_logic::sim::ShiftChain;
+use stepbridge_sim::ShiftChain;
 
 struct Bytes<'a>(core::slice::Iter<'a, u8>);
 
@@ -138,7 +138,7 @@ pub fn run(data: &[u8]) {
             }
             3 => {
                 if let Some(p) = running.take() {
-                    let rx = chain.transfer(&p);
+                    let rx = crate::ioext_wire::transfer(&mut chain, &p);
                     assert!(io.complete(&rx).is_ok());
                     assert!(io.status());
                     last_bits = p.bits;

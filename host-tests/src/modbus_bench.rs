@@ -11,8 +11,8 @@ use crate::clock::SimClock;
 use bridge_logic::bridge::Bridge;
 use bridge_logic::postep60::settings::Serial;
 use bridge_logic::postep60::{Board, Settings};
-use bridge_logic::sim::SimChain;
 use bridge_logic::transport::modbus::{RtuServer, Timing};
+use stepbridge_sim::SimChain;
 
 pub use crate::sim_bridge::TICK_US;
 
@@ -242,11 +242,11 @@ impl ModbusBench {
         crate::sim_bridge::settle(self, cap, |h| &h.bridge, |h| h.run(1));
     }
 
-    pub fn chip(&self, k: usize) -> &bridge_logic::sim::Powerstep01 {
+    pub fn chip(&self, k: usize) -> &stepbridge_sim::Powerstep01 {
         crate::sim_bridge::chip(&self.bridge, k)
     }
 
-    pub fn chip_mut(&mut self, k: usize) -> &mut bridge_logic::sim::Powerstep01 {
+    pub fn chip_mut(&mut self, k: usize) -> &mut stepbridge_sim::Powerstep01 {
         crate::sim_bridge::chip_mut(&mut self.bridge, k)
     }
 }

@@ -6,7 +6,7 @@ use crate::clock::{SimClock, SimControl};
 use bridge_logic::motion::{Axis, AxisConfig, AxisGroup, AxisState, Limits, TickReport};
 use bridge_logic::powerstep::chain::Chain;
 use bridge_logic::powerstep::registers::sign_extend_22;
-use bridge_logic::sim::SimChain;
+use stepbridge_sim::SimChain;
 
 /// An axis group and its chain as one simulated control loop.
 pub struct GroupOnChain<'a> {

@@ -3,7 +3,7 @@
 use bridge_logic::bridge::{Bridge, SettingsSource};
 use bridge_logic::postep60::analog::AnalogSample;
 use bridge_logic::postep60::{Board, Settings};
-use bridge_logic::sim::{Powerstep01, SimChain};
+use stepbridge_sim::{Powerstep01, SimChain};
 
 /// The harnesses' control period.
 pub const TICK_US: u32 = 1000;

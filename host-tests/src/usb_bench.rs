@@ -10,11 +10,12 @@
 
 use crate::clock::SimClock;
 use bridge_logic::bridge::{Bridge, RunMode};
+use bridge_logic::persist::sim::SimFlash;
 use bridge_logic::persist::Store;
 use bridge_logic::postep60::settings::IMAGE_LEN;
 use bridge_logic::postep60::{Board, Settings};
-use bridge_logic::sim::{SimChain, SimFlash};
 use bridge_logic::transport::usb::{self, PoStepHid, REPORT_LEN};
+use stepbridge_sim::SimChain;
 use usb_device::class_prelude::*;
 use usb_device::device::UsbDevice;
 use usbd_class_tester::prelude::*;
@@ -83,7 +84,7 @@ impl UsbBench<'_> {
         crate::sim_bridge::settle(self, cap, |h| &h.bridge, |h| h.run(1));
     }
 
-    pub fn chip(&self, k: usize) -> &bridge_logic::sim::Powerstep01 {
+    pub fn chip(&self, k: usize) -> &stepbridge_sim::Powerstep01 {
         crate::sim_bridge::chip(&self.bridge, k)
     }
 

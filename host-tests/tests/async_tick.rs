@@ -5,8 +5,8 @@
 use bridge_logic::bridge::Bridge;
 use bridge_logic::postep60::{Board, Request, Settings};
 use bridge_logic::powerstep::chain::{ChainBus, Frames, MAX_DEVICES, MAX_WINDOWS};
-use bridge_logic::sim::SimChain;
 use host_tests::sim_bridge::{chip, new_bridge, TICK_US};
+use stepbridge_sim::SimChain;
 
 /// What a DMA driver does between `tick_begin` and `tick_end`: clock every
 /// window of the plan (here through the simulated chain).

@@ -10,8 +10,8 @@
 use bridge_logic::powerstep::chain::{Batch, Chain, Plan, MAX_COMMANDS, MAX_DEVICES};
 use bridge_logic::powerstep::commands::{Command, Direction, SwitchAction};
 use bridge_logic::powerstep::registers::{Access, Register, REGISTERS};
-use bridge_logic::sim::SimChain;
 use proptest::prelude::*;
+use stepbridge_sim::SimChain;
 
 fn register() -> impl Strategy<Value = Register> + Clone {
     (1u8..=27).prop_map(|a| Register::from_address(a).expect("1..=27 exist"))
@@ -230,7 +230,7 @@ fn status_poll_reads_each_device_its_own_status() {
         .bus_mut()
         .device_mut(2)
         .unwrap()
-        .inject(bridge_logic::sim::Fault::Overcurrent);
+        .inject(stepbridge_sim::Fault::Overcurrent);
     let replies = chain.poll_status().unwrap();
     for d in 0..5 {
         let s = replies.status(d).unwrap();

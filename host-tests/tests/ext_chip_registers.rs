@@ -6,9 +6,9 @@ use bridge_logic::postep60::settings::{IMAGE_LEN, TUNABLE};
 use bridge_logic::postep60::{Board, Settings};
 use bridge_logic::powerstep::registers::{Register, REGISTERS};
 use bridge_logic::powerstep::Command;
-use bridge_logic::sim::Fault;
 use host_tests::i2c_bench::I2cBench;
 use host_tests::modbus_bench::ModbusBench;
+use stepbridge_sim::Fault;
 
 fn line() -> ModbusBench {
     ModbusBench::new(2, Settings::FACTORY)

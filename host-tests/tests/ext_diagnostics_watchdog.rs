@@ -4,9 +4,9 @@
 use bridge_logic::bridge::{ResetCause, SettingsSource};
 use bridge_logic::postep60::settings::IMAGE_LEN;
 use bridge_logic::postep60::Settings;
-use bridge_logic::sim::Fault;
 use host_tests::i2c_bench::I2cBench;
 use host_tests::modbus_bench::{adu, ModbusBench};
+use stepbridge_sim::Fault;
 
 fn line() -> ModbusBench {
     ModbusBench::new(2, Settings::FACTORY)

@@ -6,10 +6,10 @@
 use bridge_logic::bridge::Bridge;
 use bridge_logic::postep60::{Query, Request, Settings, Value};
 use bridge_logic::powerstep::registers::Register;
-use bridge_logic::sim::{Fault, SimChain};
 use host_tests::clock::SimClock;
 use host_tests::modbus_bench::ModbusBench;
 use host_tests::sim_bridge::{chip, chip_mut, new_bridge, TICK_US};
+use stepbridge_sim::{Fault, SimChain};
 
 /// Homing registers.
 const CMD: u16 = 0x0400;
@@ -281,7 +281,7 @@ fn the_end_switch_settings_are_writable_over_modbus_and_enable_homing() {
 
 #[test]
 fn a_cam_on_the_simulated_shaft_homes_the_axis_onto_its_edge_without_help() {
-    use bridge_logic::sim::HomeCam;
+    use stepbridge_sim::HomeCam;
     let mut s = Settings::FACTORY;
     s.axes[0].end_switch = true;
     let mut b = ModbusBench::new(1, s);

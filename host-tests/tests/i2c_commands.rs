@@ -10,8 +10,8 @@ use bridge_logic::postep60::{Board, Inputs, Settings};
 use bridge_logic::powerstep::registers::Register;
 use bridge_logic::powerstep::Direction;
 use bridge_logic::powerstep::StepSel;
-use bridge_logic::sim::Fault;
 use host_tests::i2c_bench::{le_i32, le_u16, I2cBench};
+use stepbridge_sim::Fault;
 
 const A0: u8 = 1; // factory address of axis 0
 const A1: u8 = 2; // axis 1
@@ -958,7 +958,7 @@ fn moving_off_a_pressed_end_switch_completes_the_move() {
     // direction." The box stops when the switch becomes pressed (closed for
     // a normally open switch, open for a normally closed one), not when it
     // is released: a move off the switch runs to its target.
-    use bridge_logic::sim::HomeCam;
+    use stepbridge_sim::HomeCam;
     for nc in [false, true] {
         let mut b = I2cBench::new(
             1,

@@ -9,11 +9,11 @@
 
 use bridge_logic::bridge::Bridge;
 use bridge_logic::postep60::{Board, Settings};
-use bridge_logic::sim::SimChain;
 use host_tests::clock::SimClock;
 use host_tests::i2c_bench::{le_i32, I2cBench};
 use host_tests::rm0090::i2c_rig::I2cRig;
 use host_tests::sim_bridge::{new_bridge, TICK_US};
+use stepbridge_sim::SimChain;
 
 const A0: u8 = 1; // factory address of axis 0 (OAR1)
 const A1: u8 = 2; // axis 1 (OAR2)

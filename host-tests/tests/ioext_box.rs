@@ -9,10 +9,10 @@
 
 use bridge_logic::bridge::{Bridge, ExtError};
 use bridge_logic::postep60::{DriverMode, Query, Request, Settings, Value};
-use bridge_logic::sim::{ShiftChain, SimChain};
 use host_tests::clock::SimClock;
 use host_tests::modbus_bench::ModbusBench;
 use host_tests::sim_bridge::{chip, new_bridge, TICK_US};
+use stepbridge_sim::{ShiftChain, SimChain};
 
 const OPTIONS: u16 = 0x0200;
 const CONFIG: u16 = 0x0202;

@@ -11,8 +11,8 @@ use bridge_logic::postep60::{Board, Settings};
 use bridge_logic::powerstep::registers::Register;
 use bridge_logic::powerstep::Direction;
 use bridge_logic::powerstep::StepSel;
-use bridge_logic::sim::Fault;
 use host_tests::modbus_bench::ModbusBench;
+use stepbridge_sim::Fault;
 
 fn line() -> ModbusBench {
     ModbusBench::new(2, Settings::FACTORY)

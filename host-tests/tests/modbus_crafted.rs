@@ -10,8 +10,8 @@
 //! Another server on the bus is id 18 (0x12), libmodbus's INVALID_SERVER_ID.
 
 use bridge_logic::postep60::Settings;
-use bridge_logic::sim::Fault;
 use host_tests::modbus_bench::{adu, ModbusBench};
+use stepbridge_sim::Fault;
 
 fn line() -> ModbusBench {
     ModbusBench::new(2, Settings::FACTORY)

@@ -7,10 +7,10 @@ use bridge_logic::motion::axis::logical_to_physical;
 use bridge_logic::motion::{AxisConfig, AxisFault, Limits};
 use bridge_logic::powerstep::registers::{sign_extend_22, wrap_22};
 use bridge_logic::powerstep::{DriveMode, StepSel};
-use bridge_logic::sim::Fault;
 use host_tests::clock::{SimClock, SimControl};
 use host_tests::rig::Rig;
 use host_tests::rng::Rng;
+use stepbridge_sim::Fault;
 
 /// The build setting `STEPBRIDGE_TICK_HZ` (CI runs this file at 1, 2 and 5 kHz).
 const TICK_US: u32 = bridge_logic::rate::TICK_US;
@@ -280,7 +280,7 @@ fn overcurrent_switches_the_bridges_off_and_does_not_land() {
 
 /// A chain bus that can be told to fail its next window.
 struct Flaky {
-    sim: bridge_logic::sim::SimChain,
+    sim: stepbridge_sim::SimChain,
     fail_next: bool,
 }
 
@@ -305,7 +305,7 @@ impl SimControl for FlakyLoop {
     fn control_tick(&mut self, _now_ms: u64) {
         let _ = self.group.tick(&mut self.chain);
     }
-    fn chips(&mut self) -> &mut bridge_logic::sim::SimChain {
+    fn chips(&mut self) -> &mut stepbridge_sim::SimChain {
         &mut self.chain.bus_mut().sim
     }
 }
@@ -316,7 +316,7 @@ fn a_chain_error_sets_every_chip_up_again_and_moves_still_land() {
     use bridge_logic::powerstep::Chain;
     let c = cfg(4, StepSel::OneTwentyEighth, DriveMode::Voltage);
     let mut chain = Chain::new(Flaky {
-        sim: bridge_logic::sim::SimChain::new(2),
+        sim: stepbridge_sim::SimChain::new(2),
         fail_next: false,
     });
     assert_eq!(chain.detect(), Ok(2));

@@ -17,10 +17,10 @@ use bridge_logic::motion::AxisState;
 use bridge_logic::postep60::{Board, Query, Request, Settings, Value};
 use bridge_logic::powerstep::registers::{sign_extend_22, wrap_22, Register};
 use bridge_logic::powerstep::Command;
-use bridge_logic::sim::{Fault, SimChain};
 use host_tests::clock::SimClock;
 use host_tests::rng::Rng;
 use host_tests::sim_bridge::{chip, chip_mut, new_bridge_at, TICK_US};
+use stepbridge_sim::{Fault, SimChain};
 
 const BOARD: Board = Board::REFERENCE;
 /// Microsteps per full step on the reference board's chips (1/128).

@@ -37,10 +37,10 @@ use bridge_logic::postep60::settings::{DriverMode, Watchdog, WatchdogAction};
 use bridge_logic::postep60::{Board, Inputs, Query, Request, Settings, Value};
 use bridge_logic::powerstep::registers::{sign_extend_22, wrap_22, Register};
 use bridge_logic::powerstep::Command;
-use bridge_logic::sim::{Fault, HomeCam, SimChain};
 use host_tests::clock::SimClock;
 use host_tests::rng::Rng;
 use host_tests::sim_bridge::{chip, chip_mut, new_bridge_at};
+use stepbridge_sim::{Fault, HomeCam, SimChain};
 
 const BOARD: Board = Board::REFERENCE;
 /// Homing registers (extension 0x04nn).

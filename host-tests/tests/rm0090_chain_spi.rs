@@ -10,13 +10,13 @@ use bridge_logic::postep60::analog::AnalogSample;
 use bridge_logic::postep60::{Board, Query, Request, Settings, Value};
 use bridge_logic::powerstep::chain::{Batch, ChainBus, Frames, Plan, MAX_DEVICES, MAX_WINDOWS};
 use bridge_logic::powerstep::commands::Command;
-use bridge_logic::sim::SimChain;
 use drivers_core::chain_spi::bits::*;
 use drivers_core::chain_spi::{
     chain_spi, ChainClocks, ChainDma, ChainPort, ChainSpiError, RX_STREAM, TEIF0, TX_STREAM,
 };
 use host_tests::rm0090::chain_spi::{ChainHandle, PCLK2_HZ, SYSCLK_HZ, TIMCLK_HZ};
 use host_tests::sim_bridge::{all_settled, chip, new_bridge, TICK_US};
+use stepbridge_sim::SimChain;
 
 const EMPTY: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS];
 

@@ -5,9 +5,9 @@
 //! store's power-cut test on top (every flash operation of a save torn in
 //! turn, the sector erase included).
 
+use bridge_logic::persist::sim::SplitMix64;
 use bridge_logic::persist::{Store, StoreError, MAX_IMAGE};
 use bridge_logic::postep60::settings::{Settings, IMAGE_LEN};
-use bridge_logic::sim::flash::SplitMix64;
 use drivers_core::flash::bits::*;
 use drivers_core::flash::{ControllerError, StoreFlash, StoreFlashError, SECTOR_SIZE};
 use drivers_core::Regs;

@@ -5,7 +5,7 @@
 use bridge_logic::bridge::{Bridge, SettingsSource};
 use bridge_logic::postep60::{Board, Settings};
 use bridge_logic::rate;
-use bridge_logic::sim::SimChain;
+use stepbridge_sim::SimChain;
 
 fn windows_of_one_detection(n: usize) -> u64 {
     let b = Bridge::new(

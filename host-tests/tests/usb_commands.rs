@@ -9,8 +9,8 @@ use bridge_logic::motion::axis::logical_to_physical;
 use bridge_logic::postep60::settings::DriverMode;
 use bridge_logic::postep60::Settings;
 use bridge_logic::powerstep::StepSel;
-use bridge_logic::sim::Fault;
 use host_tests::usb_bench::{read, transact, write, UsbCtx, UID};
+use stepbridge_sim::Fault;
 use usbd_class_tester::prelude::*;
 
 /// An OUT report: command in `[1]`, `[63]` = 0, the rest zero.

@@ -15,9 +15,11 @@
 //! * [`bridge`] — the object the firmware owns: `tick(now)` for the control
 //!   loop, requests and queries for the buses, and the adapters that connect
 //!   each transport to the device models.
-//! * [`sim`] (this crate's tests; feature `sim` for host-tests and the QEMU
-//!   image) — a byte-accurate powerSTEP01 and chain model, flash with power
-//!   cuts, and the virtual clock of simulated control loops.
+//!
+//! The simulated hardware (powerSTEP01 chips and chain, the I/O extension's
+//! shift registers) is its own crate, `stepbridge-sim`, which does not
+//! depend on this one; the simulated flash is the settings store's (feature
+//! `sim`).
 #![cfg_attr(not(test), no_std)]
 // Tests are not bus input: they may index, unwrap and panic.
 #![cfg_attr(
@@ -43,8 +45,3 @@ pub mod transport;
 pub use powerstep01 as powerstep;
 /// The power-cut-safe settings store (its own crate, `settings-store`).
 pub use settings_store as persist;
-
-// The simulator is built for this crate's own tests and, with the `sim`
-// feature, for host-tests and the QEMU image.
-#[cfg(any(test, feature = "sim"))]
-pub mod sim;

@@ -20,7 +20,7 @@
 //! | `Analog` | ADC1 (`drivers::analog`) | constant 24 V / 25 °C | ADC init reads calibration next to the unique ID, which HardFaults |
 //! | `SettingsFlash` | sectors 10 and 11 (`drivers::flash`) | RAM copy of a host file, written through by semihosting | flash controller not modelled |
 //! | `I2cSlaveDriver` | I2C1 slave (`drivers::i2c_slave`) | takes address changes; I2C1 stays off | I2C transfers hang |
-//! | `IoExtDriver`, `ioext_driver` | SPI2 + DMA1, TIM1 + DMA2, CS PB11 (`drivers::ioext_spi`) | `sim::ShiftChain` (two '165, one '595), ends at once; USART1 console `press N` / `release N` | no DMA, no TIM1 |
+//! | `IoExtDriver`, `ioext_driver` | SPI2 + DMA1, TIM1 + DMA2, CS PB11 (`drivers::ioext_spi`) | `stepbridge_sim::ShiftChain` (two '165, one '595), ends at once; USART1 console `press N` / `release N` | no DMA, no TIM1 |
 //! | `HardFault` handler | STBY low, wait for the watchdog | exit QEMU with status 1 | a crash must end a run |
 //! | `Usb`, `start_usb` | OTG FS, PoStep60 HID (`drivers::usb`) | never started (`Usb` has no value); logs "USB: not modelled by QEMU, not started" | OTG FS unimplemented: its core reset waits for ever |
 //! | `unique_id` | the 96 bits at 0x1FFF_7A10 | a fixed id (logged) | reading 0x1FFF_7A10 HardFaults |

@@ -40,7 +40,7 @@
 //!   written through by semihosting, so settings saved under QEMU survive a
 //!   restart.
 //! * **I/O extension**: [`IoExtDriver`] runs every transfer through the
-//!   logic crate's simulated 74HC165/74HC595 chain ([`IOEXT_165`] '165s,
+//!   simulated 74HC165/74HC595 chain of `stepbridge-sim` ([`IOEXT_165`] '165s,
 //!   [`IOEXT_595`] '595) at once, instead of SPI2/TIM1/DMA (QEMU 7.2's
 //!   STM32F405 has no DMA controller and no TIM1). Its inputs are buttons
 //!   with pull-ups, all open at boot; the test hook is a console on USART1
@@ -56,14 +56,14 @@
 #![allow(unsafe_code)]
 
 use bridge_logic::bridge::{BatchState, WatchdogWindow};
-use bridge_logic::ioext::{Action, WireBits};
+use bridge_logic::ioext::{wire, Action, TransferPlan, WireBits};
 use bridge_logic::postep60::analog::AnalogSample;
 use bridge_logic::powerstep::chain::{clock_windows, Frames, Plan};
 use bridge_logic::powerstep::ChainBus;
-use bridge_logic::sim::{ConsoleCommand, HomeCam, ShiftChain, SimChain};
 use bridge_logic::transport::i2c::{I2cSlave, I2cTarget};
 use defmt_semihosting as _;
 use drivers_core::iwdg::WindowError;
+use stepbridge_sim::{ConsoleCommand, HomeCam, Lines, ShiftChain, SimChain};
 use stm32f4xx_hal::pac;
 use stm32f4xx_hal::rcc::{Config, Enable, Rcc, RccExt, Reset};
 
@@ -434,9 +434,28 @@ impl IoExtDriver {
     pub fn run(&mut self, action: &Action) -> Started {
         self.poll_console();
         match action {
-            Action::Transfer(plan) => Started::Ended(Ok(self.chain.transfer(plan))),
+            Action::Transfer(plan) => Started::Ended(Ok(self.transfer(plan))),
             Action::Disable => Started::Released,
         }
+    }
+
+    /// Clock `plan`'s wire through the simulated chips, half period by half
+    /// period (they take line levels): the bits the master samples.
+    fn transfer(&mut self, plan: &TransferPlan) -> WireBits {
+        let mut rx = WireBits::ZERO;
+        let mut k = 0;
+        for h in wire(plan) {
+            let miso = self.chain.step(Lines {
+                cs: h.cs,
+                sck: h.sck,
+                mosi: h.mosi,
+            });
+            if h.sample {
+                rx.set(k, miso);
+                k += 1;
+            }
+        }
+        rx
     }
 
     /// No DMA interrupt ever fires under QEMU.

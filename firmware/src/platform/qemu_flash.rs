@@ -17,8 +17,8 @@
 
 use core::ffi::CStr;
 
+use bridge_logic::persist::sim::{SimFlash, SimFlashError};
 use bridge_logic::persist::MAX_RECORD;
-use bridge_logic::sim::{SimFlash, SimFlashError};
 use embedded_storage::nor_flash::{
     ErrorType, NorFlash, NorFlashError, NorFlashErrorKind, ReadNorFlash,
 };

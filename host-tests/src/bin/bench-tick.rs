@@ -10,8 +10,8 @@
 use bridge_logic::motion::{Axis, AxisConfig, AxisGroup, Limits, Profile};
 use bridge_logic::powerstep::chain::{Chain, Plan, Replies};
 use bridge_logic::powerstep::{DriveMode, StepSel};
-use bridge_logic::sim::SimChain;
 use host_tests::clock::{SimClock, SimControl};
+use stepbridge_sim::SimChain;
 
 const TICK_US: u32 = 1000;
 

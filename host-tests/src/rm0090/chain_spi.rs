@@ -1,7 +1,7 @@
 //! RM0090 §28, §10 and §20: SPI1 as the chain's master, DMA2 streams 0
 //! (SPI1_RX) and 3 (SPI1_TX), TIM7 and the CS line, as
 //! `drivers_core::chain_spi` sees them, with the simulated powerSTEP01
-//! chain (`bridge_logic::sim::SimChain`) behind MOSI/MISO. Time runs in
+//! chain (`stepbridge_sim::SimChain`) behind MOSI/MISO. Time runs in
 //! picoseconds; register accesses take [`ACCESS_PS`] each.
 //!
 //! # Rules (RM0090 rev 19 section numbers)
@@ -37,13 +37,13 @@ use std::cell::{Ref, RefCell, RefMut};
 use std::rc::Rc;
 
 use bridge_logic::powerstep::chain::{Frames, MAX_DEVICES, MAX_WINDOWS};
-use bridge_logic::sim::SimChain;
 use drivers_core::chain_spi::bits::*;
 use drivers_core::chain_spi::{
     ChainBuffers, ChainHw, ChainMemory, ChainReg, CS_DESELECT_NS, CS_SETUP_NS, DMEIF0, FEIF0,
     HTIF0, RX_STREAM, SPI1_CHANNEL, STREAM_FLAGS, TCIF0, TCIF3, TEIF0, TX_STREAM,
 };
 use drivers_core::Regs;
+use stepbridge_sim::SimChain;
 
 /// APB2 (SPI1) and TIM7's clock on the board, and the CPU clock.
 pub const PCLK2_HZ: u64 = 84_000_000;

@@ -32,14 +32,14 @@
 //!   wrong key sequence (F1).
 //! * Power cuts: [`FlashModel::cut_power_at`] tears the array operation
 //!   (byte program or sector erase) with that number, like
-//!   `bridge_logic::sim::SimFlash` tears its operations: a torn byte keeps
+//!   `bridge_logic::persist::sim::SimFlash` tears its operations: a torn byte keeps
 //!   an arbitrary subset of its 1 → 0 transitions, a torn sector word by
 //!   word is erased, unchanged, or noise. From then on the model is
 //!   unpowered: writes do nothing and FLASH_SR reads OPERR, so the driver
 //!   returns at once (the CPU would be gone);
 //!   [`FlashModel::restore_power`] is the next boot.
 
-use bridge_logic::sim::flash::SplitMix64;
+use bridge_logic::persist::sim::SplitMix64;
 use drivers_core::flash::bits::*;
 use drivers_core::flash::{FlashPort, FlashReg, SECTOR_SIZE, STORE_BASE, STORE_SIZE};
 use drivers_core::Regs;

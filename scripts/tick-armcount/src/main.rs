@@ -16,7 +16,7 @@
 use bridge_logic::motion::{Axis, AxisConfig, AxisGroup, Limits, Profile};
 use bridge_logic::powerstep::chain::{Chain, ChainBus, Replies};
 use bridge_logic::powerstep::{DriveMode, StepSel};
-use bridge_logic::sim::SimChain;
+use stepbridge_sim::SimChain;
 use core::hint::black_box;
 use cortex_m_rt::entry;
 

@@ -17,7 +17,7 @@ mod transfers;
 use super::config::cfg;
 use super::registers::addr;
 use super::*;
-use crate::sim::shift::ShiftChain;
+use stepbridge_sim::shift::{Lines, ShiftChain};
 
 /// The extension on the board's clocks with 32 '165s and 32 '595s.
 pub(super) struct Rig {
@@ -75,7 +75,7 @@ impl Rig {
     pub fn tick_with(&mut self, outs: &[AxisOutputs]) -> Option<TransferPlan> {
         match self.io.tick(outs)? {
             Action::Transfer(p) => {
-                let rx = self.chain.transfer(&p);
+                let rx = run(&mut self.chain, &p);
                 self.io.complete(&rx).unwrap();
                 self.plans.push(p);
                 Some(p)
@@ -87,6 +87,25 @@ impl Rig {
     pub fn tick(&mut self) -> Option<TransferPlan> {
         self.tick_with(&[])
     }
+}
+
+/// Clock `plan`'s wire ([`wire()`]) through the simulated chips, half
+/// period by half period: the bits the master samples.
+pub(super) fn run(chain: &mut ShiftChain, plan: &TransferPlan) -> WireBits {
+    let mut rx = WireBits::ZERO;
+    let mut k = 0;
+    for h in wire(plan) {
+        let miso = chain.step(Lines {
+            cs: h.cs,
+            sck: h.sck,
+            mosi: h.mosi,
+        });
+        if h.sample {
+            rx.set(k, miso);
+            k += 1;
+        }
+    }
+    rx
 }
 
 /// A bit pattern that tells positions apart.

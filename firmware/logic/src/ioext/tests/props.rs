@@ -98,7 +98,7 @@ proptest! {
                 }
                 Op::Complete => {
                     if let Some(p) = running.take() {
-                        let rx = chain.transfer(&p);
+                        let rx = run(&mut chain, &p);
                         prop_assert!(io.complete(&rx).is_ok());
                         status = true;
                         transfers += 1;

@@ -119,7 +119,7 @@ fn no_transfer_starts_while_one_runs_and_restarts_are_counted() {
     // Written data waits too (auto-restart picks it up).
     r.write(addr::TX, &[1]).unwrap();
     assert_eq!(r.io.tick(&[]), None);
-    let rx = r.chain.transfer(&p);
+    let rx = run(&mut r.chain, &p);
     r.io.complete(&rx).unwrap();
     let Some(Action::Transfer(next)) = r.io.tick(&[]) else {
         panic!()

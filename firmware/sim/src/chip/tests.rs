@@ -6,9 +6,12 @@ extern crate std;
 use std::vec;
 use std::vec::Vec;
 
+use powerstep01::Direction::{Forward, Reverse};
+use powerstep01::MotorStatus;
+
 use super::engine::dist_in_dir;
 use super::*;
-use crate::powerstep::commands::Direction::{Forward, Reverse};
+use crate::datasheet::wrap_22;
 
 const MS: u64 = 1_000_000;
 const TICK: u64 = TICK_NS;
@@ -17,18 +20,21 @@ fn send(d: &mut Powerstep01, bytes: &[u8]) -> Vec<u8> {
     bytes.iter().map(|b| d.exchange(*b)).collect()
 }
 
+/// Send `c` encoded by the model's own command table.
 fn cmd(d: &mut Powerstep01, c: Command) -> Vec<u8> {
-    send(d, c.encode().as_slice())
+    send(d, datasheet::encode(&c).as_slice())
 }
 
-fn get_status(d: &mut Powerstep01) -> Status {
+fn get_status(d: &mut Powerstep01) -> StatusWord {
     let rx = send(d, &[0xD0, 0, 0]);
-    Status::from_bytes(rx[1], rx[2])
+    StatusWord::from_bytes(rx[1], rx[2])
 }
 
 fn get_param(d: &mut Powerstep01, r: Register) -> u32 {
-    let mut tx = vec![0x20 | r.address()];
-    tx.extend(core::iter::repeat_n(0u8, usize::from(r.bytes())));
+    let a = vocab::address(r);
+    let mut tx = vec![0x20 | a];
+    let bytes = datasheet::register(a).expect("a register").bytes;
+    tx.extend(core::iter::repeat_n(0u8, usize::from(bytes)));
     let rx = send(d, &tx);
     rx[1..].iter().fold(0u32, |a, b| (a << 8) | u32::from(*b))
 }
@@ -53,7 +59,7 @@ fn settle(d: &mut Powerstep01, chunk: u64, limit_ms: u64) -> u64 {
 }
 
 fn error(d: &Powerstep01) -> bool {
-    d.status().command_error()
+    d.status_word().command_error()
 }
 
 // ------------------------------------------------------------ power-up
@@ -61,13 +67,8 @@ fn error(d: &Powerstep01) -> bool {
 #[test]
 fn power_up_registers_hold_their_table_reset_values() {
     let d = Powerstep01::new();
-    for info in REGISTERS.iter().filter(|i| i.register != Register::Status) {
-        assert_eq!(
-            d.register(info.register),
-            info.reset,
-            "{}",
-            info.voltage_mode_name
-        );
+    for spec in REGISTERS.iter().filter(|r| r.address != addr::STATUS) {
+        assert_eq!(d.register_at(spec.address), spec.reset, "{}", spec.name);
     }
     assert!(d.is_hiz());
     assert!(!d.is_busy());
@@ -77,10 +78,10 @@ fn power_up_registers_hold_their_table_reset_values() {
 #[test]
 fn uvlo_reads_asserted_after_power_up_until_the_first_get_status() {
     let mut d = Powerstep01::new();
-    let p = Status(get_param(&mut d, Register::Status) as u16);
+    let p = StatusWord(get_param(&mut d, Register::Status) as u16);
     assert!(p.uvlo());
     assert_eq!(p.raw(), 0xE413, "HiZ, idle, forward, UVLO low");
-    assert!(Status(get_param(&mut d, Register::Status) as u16).uvlo());
+    assert!(StatusWord(get_param(&mut d, Register::Status) as u16).uvlo());
     let s = get_status(&mut d);
     assert!(s.uvlo());
     let s = get_status(&mut d);
@@ -95,7 +96,7 @@ fn set_param_to_a_read_only_register_is_refused_at_the_command_byte() {
     for reg in [Register::Speed, Register::AdcOut, Register::Status] {
         let mut d = ready();
         // SetParam(reg), then what would be its argument is a GetParam(KVAL_HOLD).
-        let rx = send(&mut d, &[reg.address(), 0x29, 0x00]);
+        let rx = send(&mut d, &[vocab::address(reg), 0x29, 0x00]);
         assert_eq!(rx, [0x00, 0x00, 0x29], "{reg:?}");
         assert!(error(&d));
         assert_eq!(d.command_errors(), 1);
@@ -169,6 +170,21 @@ fn wh_register_written_while_not_in_hiz_is_refused() {
 }
 
 #[test]
+fn el_pos_is_writable_in_hiz_only() {
+    // AN4290 Table 4 classes EL_POS "writable when in HiZ only" (the DS
+    // access column says WS): stopped with the bridges on is not enough.
+    let mut d = ready();
+    cmd(&mut d, Command::SetParam(Register::ElPos, 0x80));
+    assert!(!error(&d));
+    assert_eq!(d.register(Register::ElPos), 0x80);
+    cmd(&mut d, Command::HardStop);
+    assert!(d.is_stopped() && !d.is_hiz());
+    cmd(&mut d, Command::SetParam(Register::ElPos, 0x100));
+    assert!(error(&d), "stopped but not in HiZ: refused");
+    assert_eq!(d.register(Register::ElPos), 0x80);
+}
+
+#[test]
 fn a_response_producing_command_abandons_the_pending_response() {
     let mut d = ready();
     d.set_register_raw(Register::AbsPos, 0x12_3456);
@@ -210,7 +226,7 @@ fn get_status_clears_latched_flags_but_get_param_status_does_not() {
     d.inject(Fault::Overcurrent);
     d.inject(Fault::Uvlo);
     for _ in 0..2 {
-        let p = Status(get_param(&mut d, Register::Status) as u16);
+        let p = StatusWord(get_param(&mut d, Register::Status) as u16);
         assert!(p.command_error() && p.switch_event() && p.stalled());
         assert!(p.overcurrent() && p.uvlo());
     }
@@ -230,7 +246,7 @@ fn latched_thermal_status_stays_while_the_condition_persists() {
     assert_eq!(get_status(&mut d).thermal(), ThermalStatus::Warning);
     assert_eq!(get_status(&mut d).thermal(), ThermalStatus::Warning);
     d.inject(Fault::ThermalNormal);
-    assert_eq!(d.status().thermal(), ThermalStatus::Warning, "latched");
+    assert_eq!(d.status_word().thermal(), ThermalStatus::Warning, "latched");
     assert_eq!(get_status(&mut d).thermal(), ThermalStatus::Warning);
     assert_eq!(get_status(&mut d).thermal(), ThermalStatus::Normal);
 }
@@ -308,7 +324,7 @@ fn reset_device_outside_hiz_is_refused() {
     cmd(&mut d, Command::ResetDevice);
     assert!(error(&d));
     assert_eq!(d.register(Register::KvalRun), 0x40);
-    assert!(!d.status().uvlo());
+    assert!(!d.status_word().uvlo());
 }
 
 #[test]
@@ -410,11 +426,11 @@ fn run_reaches_speed_after_the_analytic_acceleration_time() {
     let whole = analytic.floor() as u64;
     d.advance((whole - 1) * TICK);
     assert!(d.is_busy());
-    assert_eq!(d.status().motor_status(), MotorStatus::Accelerating);
+    assert_eq!(d.status_word().motor_status(), MotorStatus::Accelerating);
     d.advance(2 * TICK);
     assert!(!d.is_busy());
     assert_eq!(d.speed_reg(), spd);
-    assert_eq!(d.status().motor_status(), MotorStatus::ConstantSpeed);
+    assert_eq!(d.status_word().motor_status(), MotorStatus::ConstantSpeed);
     // The speed ramp itself is exact: v = k·ACC after k ticks.
     let mut e = ready();
     cmd(&mut e, Command::Run(Forward, spd));
@@ -487,7 +503,7 @@ fn land(d: &mut Powerstep01, dir: Direction, target: u32, rng: &mut Rng) -> u64 
     }
     assert_eq!(d.abs_raw(), target);
     assert_eq!(d.speed_reg(), 0);
-    assert_eq!(d.status().motor_status(), MotorStatus::Stopped);
+    assert_eq!(d.status_word().motor_status(), MotorStatus::Stopped);
     assert!(!error(d));
     t
 }
@@ -585,7 +601,7 @@ fn snapshot(d: &Powerstep01) -> (i32, u64, u16, u32) {
     (
         d.abs_pos(),
         d.speed_internal(),
-        d.status().raw(),
+        d.status_word().raw(),
         d.register(Register::ElPos),
     )
 }
@@ -667,7 +683,7 @@ fn soft_stop_decelerates_with_dec() {
     assert!(d.is_busy());
     d.advance(1_000 * TICK);
     assert_eq!(d.speed_internal(), v0 - 1_000 * 0x100);
-    assert_eq!(d.status().motor_status(), MotorStatus::Decelerating);
+    assert_eq!(d.status_word().motor_status(), MotorStatus::Decelerating);
     let n = v0 / 0x100; // ticks until below one DEC step
     d.advance((n - 1_000 - 1) * TICK);
     assert!(d.is_busy());
@@ -731,13 +747,13 @@ fn a_wh_register_write_after_a_wake_in_the_same_batch_is_refused() {
     // whose bridges are on.
     let mut d = ready();
     assert!(d.is_hiz());
-    let mut chain = crate::sim::SimChain::new(1);
+    let mut chain = crate::SimChain::new(1);
     *chain.device_mut(0).expect("chip") = d.clone();
     for c in [
         Command::HardStop,
         Command::SetParam(Register::GateCfg1, 0x111),
     ] {
-        for b in c.encode().as_slice() {
+        for b in datasheet::encode(&c).as_slice() {
             let mut rx = [0u8];
             chain.transfer(&[*b], &mut rx);
         }
@@ -750,7 +766,7 @@ fn a_wh_register_write_after_a_wake_in_the_same_batch_is_refused() {
 fn sw_user_mode(d: &mut Powerstep01) {
     cmd(
         d,
-        Command::SetParam(Register::Config, 0x2C88 | u32::from(Config::SW_MODE)),
+        Command::SetParam(Register::Config, 0x2C88 | config::SW_MODE),
     );
 }
 
@@ -769,7 +785,7 @@ fn go_until_resets_abs_pos_on_switch_closing_then_soft_stops() {
     d.set_switch(true);
     assert_eq!(d.abs_pos(), 0);
     assert_eq!(d.speed_internal(), v, "soft stop: no speed jump");
-    assert!(d.status().switch_event());
+    assert!(d.status_word().switch_event());
     settle(&mut d, MS, 10_000);
     assert_eq!(d.speed_reg(), 0);
     assert!(d.abs_pos() > 0, "decelerated past the switch");
@@ -867,10 +883,10 @@ fn switch_closing_only_latches_the_event_when_sw_mode_is_1() {
     let v = d.speed_internal();
     d.set_switch(true);
     assert_eq!(d.speed_internal(), v);
-    assert!(d.status().switch_event());
+    assert!(d.status_word().switch_event());
     d.set_switch(false);
-    assert!(!d.status().switch_closed());
-    assert!(d.status().switch_event(), "latched");
+    assert!(!d.status_word().switch_closed());
+    assert!(d.status_word().switch_event(), "latched");
 }
 
 #[test]
@@ -881,13 +897,13 @@ fn run_in_the_opposite_direction_decelerates_then_reverses() {
     let v0 = d.speed_internal();
     cmd(&mut d, Command::Run(Reverse, 40_000));
     assert!(d.is_busy());
-    assert_eq!(d.status().direction(), Forward);
-    assert_eq!(d.status().motor_status(), MotorStatus::Decelerating);
+    assert_eq!(d.status_word().direction(), Forward);
+    assert_eq!(d.status_word().motor_status(), MotorStatus::Decelerating);
     d.advance(1_000 * TICK);
     assert_eq!(d.speed_internal(), v0 - 1_000 * 0x08A);
     let peak = d.abs_pos();
     settle(&mut d, MS, 10_000);
-    assert_eq!(d.status().direction(), Reverse);
+    assert_eq!(d.status_word().direction(), Reverse);
     assert_eq!(d.speed_internal(), v0);
     let p = d.abs_pos();
     assert!(p < peak + 10_000);
@@ -903,11 +919,11 @@ fn go_to_takes_the_shortest_path_across_the_wrap() {
         Command::SetParam(Register::AbsPos, wrap_22((1 << 21) - 100)),
     );
     cmd(&mut d, Command::GoTo(-(1 << 21) + 100));
-    assert_eq!(d.status().direction(), Forward);
+    assert_eq!(d.status_word().direction(), Forward);
     let mut rng = Rng(7);
     land(&mut d, Forward, wrap_22(-(1 << 21) + 100), &mut rng);
     cmd(&mut d, Command::GoTo((1 << 21) - 100));
-    assert_eq!(d.status().direction(), Reverse);
+    assert_eq!(d.status_word().direction(), Reverse);
     land(&mut d, Reverse, wrap_22((1 << 21) - 100), &mut rng);
 }
 
@@ -915,7 +931,7 @@ fn go_to_takes_the_shortest_path_across_the_wrap() {
 fn go_to_dir_forces_the_direction() {
     let mut d = ready();
     cmd(&mut d, Command::GoToDir(Reverse, 10)); // 2²² − 10 microsteps the long way
-    assert_eq!(d.status().direction(), Reverse);
+    assert_eq!(d.status_word().direction(), Reverse);
     let mut rng = Rng(11);
     land(&mut d, Reverse, 10, &mut rng);
 }
@@ -969,7 +985,7 @@ fn positioning_arrives_slowly_and_brakes_with_dec() {
         cmd(&mut d, Command::SetParam(Register::Dec, dec as u32));
         cmd(&mut d, Command::SetParam(Register::MaxSpeed, 0x3FF));
         cmd(&mut d, Command::Move(Forward, 400_000));
-        while d.status().motor_status() != MotorStatus::Decelerating {
+        while d.status_word().motor_status() != MotorStatus::Decelerating {
             d.advance(MS);
         }
         // Tick by tick while braking: speed falls by exactly DEC per tick.
@@ -1013,7 +1029,7 @@ fn lowering_max_speed_while_running_decelerates_to_it() {
     d.advance(2_000 * MS);
     cmd(&mut d, Command::SetParam(Register::MaxSpeed, 0x20));
     assert!(!error(&d), "MAX_SPEED is writable any time");
-    assert_eq!(d.status().motor_status(), MotorStatus::Decelerating);
+    assert_eq!(d.status_word().motor_status(), MotorStatus::Decelerating);
     d.advance(2_000 * MS);
     assert_eq!(d.speed_internal(), 0x20 << 22);
     let mut rng = Rng(9);
@@ -1024,14 +1040,14 @@ fn lowering_max_speed_while_running_decelerates_to_it() {
 fn step_clock_pulses_move_one_microstep_each() {
     let mut d = ready();
     cmd(&mut d, Command::StepClock(Reverse));
-    assert!(d.status().step_clock_mode());
+    assert!(d.status_word().step_clock_mode());
     assert!(!d.is_hiz());
     for _ in 0..5 {
         d.step_clock_pulse();
     }
     assert_eq!(d.abs_pos(), -5);
     cmd(&mut d, Command::HardStop);
-    assert!(!d.status().step_clock_mode());
+    assert!(!d.status_word().step_clock_mode());
     d.step_clock_pulse();
     assert_eq!(d.abs_pos(), -5);
 }
@@ -1043,7 +1059,7 @@ fn step_clock_while_moving_is_refused() {
     d.advance(MS);
     cmd(&mut d, Command::StepClock(Forward));
     assert!(error(&d));
-    assert!(!d.status().step_clock_mode());
+    assert!(!d.status_word().step_clock_mode());
 }
 
 #[test]
@@ -1076,7 +1092,7 @@ fn overcurrent_with_oc_sd_goes_hiz_and_locks_the_bridges_until_get_status() {
     d.advance(100 * MS);
     d.inject(Fault::Overcurrent);
     assert!(d.is_hiz());
-    assert!(d.status().overcurrent());
+    assert!(d.status_word().overcurrent());
     cmd(&mut d, Command::Run(Forward, 40_000));
     assert!(error(&d));
     assert!(d.is_hiz());
@@ -1095,7 +1111,7 @@ fn overcurrent_without_oc_sd_only_latches_the_flag() {
     d.inject(Fault::Overcurrent);
     assert!(!d.is_hiz());
     assert!(d.speed_reg() > 0);
-    assert!(d.status().overcurrent());
+    assert!(d.status_word().overcurrent());
 }
 
 #[test]
@@ -1156,7 +1172,10 @@ fn dead_device_drives_its_stuck_byte_and_ignores_input_until_revived() {
         d.inject(Fault::Revive);
         assert!(!d.is_dead());
         let s = get_status(&mut d);
-        assert!(s.hiz() && !s.looks_dead());
+        assert!(
+            s.hiz() && s.raw() != 0xFFFF && s.raw() != 0x0000,
+            "not stuck"
+        );
     }
 }
 
@@ -1172,7 +1191,7 @@ fn a_slower_run_decelerates_with_dec_not_at_once() {
     // DEC (0x08A) per tick, never a jump to the new speed.
     assert_eq!(d.speed_internal(), (60_000u64 << 12) - 1000 * 0x08A);
     assert!(d.is_busy());
-    assert_eq!(d.status().motor_status(), MotorStatus::Decelerating);
+    assert_eq!(d.status_word().motor_status(), MotorStatus::Decelerating);
 }
 
 #[test]
@@ -1204,13 +1223,8 @@ fn power_cycle_restores_every_register_including_the_currents() {
         assert_eq!(d.register(r), v);
     }
     d.inject(Fault::PowerCycle);
-    for info in REGISTERS.iter().filter(|i| i.register != Register::Status) {
-        assert_eq!(
-            d.register(info.register),
-            info.reset,
-            "{}",
-            info.voltage_mode_name
-        );
+    for spec in REGISTERS.iter().filter(|r| r.address != addr::STATUS) {
+        assert_eq!(d.register_at(spec.address), spec.reset, "{}", spec.name);
     }
 }
 

@@ -3,6 +3,7 @@
 
 use super::engine::dist_in_dir;
 use super::*;
+use crate::datasheet::{wrap_22, Access, Verdict};
 
 impl Powerstep01 {
     // ------------------------------------------------------------ SPI ----
@@ -37,10 +38,10 @@ impl Powerstep01 {
                 self.complete(frame.get(..=n).unwrap_or(&[]));
             }
         } else {
-            match Command::classify(input) {
-                CommandByte::Invalid => self.refuse(),
-                CommandByte::Takes(0) => self.complete(&[input]),
-                CommandByte::Takes(n) => {
+            match datasheet::command_byte(input) {
+                Verdict::Refused => self.refuse(),
+                Verdict::Takes(0) => self.complete(&[input]),
+                Verdict::Takes(n) => {
                     self.cmd = input;
                     self.need = n.min(3);
                     self.got = 0;
@@ -88,8 +89,8 @@ impl Powerstep01 {
     }
 
     pub(super) fn complete(&mut self, frame: &[u8]) {
-        match Command::decode(frame) {
-            Ok(cmd) => {
+        match datasheet::decode(frame) {
+            Some(cmd) => {
                 if cmd != Command::Nop {
                     if self.log.is_full() {
                         let _ = self.log.pop_front();
@@ -102,12 +103,12 @@ impl Powerstep01 {
                 // zero-length moves) take effect at once.
                 self.run_engine(0);
             }
-            Err(_) => self.refuse(),
+            None => self.refuse(),
         }
     }
 
     pub(super) fn bridges_locked(&self) -> bool {
-        self.ocd_lock || self.th_cond >= 2
+        self.ocd_lock || self.th_cond >= bits::th::BRIDGE_SHUTDOWN
     }
 
     /// Common part of every accepted motion or stop command.
@@ -117,8 +118,21 @@ impl Powerstep01 {
     }
 
     pub(super) fn execute(&mut self, cmd: Command) {
-        let enables_bridges =
-            cmd.is_motion() || matches!(cmd, Command::SoftStop | Command::HardStop);
+        // Motion and stop commands switch the bridges on.
+        let enables_bridges = matches!(
+            cmd,
+            Command::Run(..)
+                | Command::StepClock(_)
+                | Command::Move(..)
+                | Command::GoTo(_)
+                | Command::GoToDir(..)
+                | Command::GoUntil(..)
+                | Command::ReleaseSw(..)
+                | Command::GoHome
+                | Command::GoMark
+                | Command::SoftStop
+                | Command::HardStop
+        );
         if enables_bridges && self.bridges_locked() {
             self.refuse();
             return;
@@ -126,25 +140,28 @@ impl Powerstep01 {
         match cmd {
             Command::Nop => {}
             Command::SetParam(r, v) => {
-                let allowed = match r.access() {
-                    Access::ReadOnly => false,
-                    Access::Always => true,
-                    Access::WhenStopped => self.is_stopped(),
-                    Access::WhenHiZ => self.hiz,
+                let address = vocab::address(r);
+                let allowed = match datasheet::register(address).map(|s| s.access) {
+                    None | Some(Access::ReadOnly) => false,
+                    Some(Access::Always) => true,
+                    Some(Access::WhenStopped) => self.is_stopped(),
+                    Some(Access::WhenHiZ) => self.hiz,
                 };
                 if allowed {
-                    self.write_reg(r, v);
+                    self.write_reg(address, v);
                 } else {
                     self.refuse();
                 }
             }
             Command::GetParam(r) => {
-                let v = self.register(r);
-                self.respond(v, r.bytes());
+                let address = vocab::address(r);
+                let v = self.register_at(address);
+                let len = datasheet::register(address).map_or(1, |s| s.bytes);
+                self.respond(v, len);
             }
             Command::GetStatus => {
-                let s = self.status();
-                self.respond(u32::from(s.raw()), 2);
+                let s = self.status_raw();
+                self.respond(u32::from(s), 2);
                 self.clear_latched();
             }
             Command::Run(dir, spd) => {
@@ -187,7 +204,7 @@ impl Powerstep01 {
             Command::GoToDir(dir, p) => self.go_to(Some(dir), wrap_22(p)),
             Command::GoHome => self.go_to(None, 0),
             Command::GoMark => {
-                let mark = self.reg(Register::Mark);
+                let mark = self.reg(addr::MARK);
                 self.go_to(None, mark)
             }
             Command::GoUntil(act, dir, spd) => {
@@ -212,7 +229,7 @@ impl Powerstep01 {
                 }
             }
             Command::ResetPos => {
-                self.set_reg(Register::AbsPos, 0);
+                self.set_reg(addr::ABS_POS, 0);
                 self.frac = 0;
             }
             Command::ResetDevice => {
@@ -288,11 +305,11 @@ impl Powerstep01 {
     pub(super) fn apply_act(&mut self, act: SwitchAction) {
         match act {
             SwitchAction::ResetAbsPos => {
-                self.set_reg(Register::AbsPos, 0);
+                self.set_reg(addr::ABS_POS, 0);
             }
             SwitchAction::CopyToMark => {
                 let p = self.abs_raw();
-                self.set_reg(Register::Mark, p);
+                self.set_reg(addr::MARK, p);
             }
         }
     }

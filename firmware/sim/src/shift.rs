@@ -1,8 +1,9 @@
 //! A chain of 74HC165 (parallel in, serial out: buttons, switches) and
-//! 74HC595 (serial in, latched parallel out: lamps) on one SPI port, as the
-//! I/O extension drives it. It consumes the half-period sequence of
-//! [`crate::ioext::wire()`] and returns what a real chain would put on
-//! MISO.
+//! 74HC595 (serial in, latched parallel out: lamps) on one SPI port, driven
+//! at pin level: [`ShiftChain::step`] takes the levels the master holds on
+//! CS, SCK and MOSI for one half clock period ([`Lines`]) and returns the
+//! level the chain puts on MISO meanwhile. It knows nothing of the I/O
+//! extension's transfer plans; the callers turn those into line levels.
 //!
 //! # Wiring assumed
 //!
@@ -34,7 +35,8 @@
 //!   rising edge the output latches take the shift register. Falling edges
 //!   do nothing; SRCLK is not gated by CS.
 //! * Every part samples its data input with the levels *before* the edge
-//!   (the wire reference's convention); MISO changes only after an edge.
+//!   (its hold time); MISO changes only after an edge. CS and SCK changing
+//!   at the same boundary are taken CS first.
 //!
 //! Numbering: receive bit `i` of a transfer is input `H − i % 8` (pin index
 //! `7 − i % 8`, A = 0) of '165 #`i / 8`; after an n-bit transfer transmit bit
@@ -55,10 +57,26 @@
 //!   lost. The '595 shifts on the leading edge, where MOSI still holds the
 //!   previous bit, so it receives b0, b0, b1, …, b(n−2).
 
-use crate::ioext::{wire, HalfPeriod, TransferPlan, WireBits};
-
 /// Most chips of each kind (256 bits).
 pub const MAX_CHIPS: usize = 32;
+
+/// The levels the master drives during one half period of SCK (true = high).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Lines {
+    /// Chip select (the '595s' RCLK; the '165s' SH/LD through an inverter).
+    pub cs: bool,
+    pub sck: bool,
+    pub mosi: bool,
+}
+
+impl Lines {
+    /// CS high, SCK low, MOSI low: the lines at power-up.
+    pub const IDLE: Lines = Lines {
+        cs: true,
+        sck: false,
+        mosi: false,
+    };
+}
 
 /// `m` 74HC165s and `p` 74HC595s wired as the module doc shows.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -75,8 +93,8 @@ pub struct ShiftChain {
     out595: [u8; MAX_CHIPS],
     /// Level on the last '165's SER.
     tail: bool,
-    /// Line levels now (CS high, SCK low, MOSI low at power-up).
-    lines: HalfPeriod,
+    /// Line levels now ([`Lines::IDLE`] at power-up).
+    lines: Lines,
     rising_edges: u64,
     latches: u64,
 }
@@ -93,12 +111,7 @@ impl ShiftChain {
             sr595: [0; MAX_CHIPS],
             out595: [0; MAX_CHIPS],
             tail: false,
-            lines: HalfPeriod {
-                cs: true,
-                sck: false,
-                mosi: false,
-                sample: false,
-            },
+            lines: Lines::IDLE,
             rising_edges: 0,
             latches: 0,
         }
@@ -172,9 +185,9 @@ impl ShiftChain {
     }
 
     /// Move the lines to `h`'s levels (CS first, then SCK, each edge seeing
-    /// the levels before it), then hold them for the half-period. Returns
-    /// the MISO level the master samples at its end, if it samples.
-    pub fn step(&mut self, h: HalfPeriod) -> Option<bool> {
+    /// the levels before it), then hold them for the half period. Returns
+    /// the MISO level during it (what a master sampling at its end reads).
+    pub fn step(&mut self, h: Lines) -> bool {
         let before = self.lines;
         // CS rising: RCLK rises (latch) and SH/LD falls (load, then follow
         // the inputs). CS falling: SH/LD rises, the '165s keep the snapshot.
@@ -188,7 +201,7 @@ impl ShiftChain {
             self.clock(h.cs, before.mosi);
         }
         self.lines = h;
-        h.sample.then(|| self.miso())
+        self.miso()
     }
 
     /// One rising edge on SCK: '165s shift when SH/LD is high (CS low),
@@ -212,20 +225,6 @@ impl ShiftChain {
             ser = out;
         }
     }
-
-    /// Run a whole transfer through the chain and return the bits the
-    /// master receives.
-    pub fn transfer(&mut self, plan: &TransferPlan) -> WireBits {
-        let mut rx = WireBits::ZERO;
-        let mut k = 0;
-        for h in wire(plan) {
-            if let Some(bit) = self.step(h) {
-                rx.set(k, bit);
-                k += 1;
-            }
-        }
-        rx
-    }
 }
 
 /// A line of the QEMU image's I/O-extension console (the test hook that
@@ -234,7 +233,6 @@ impl ShiftChain {
 /// pull-ups and contacts to GND, as the box's (docs/ioext.md), so a closed
 /// contact reads 0.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub struct ConsoleCommand {
     /// Receive bit (wire order).
     pub bit: usize,
@@ -268,38 +266,98 @@ impl ShiftChain {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ioext::{clock_plan, Clocks, SpiMode};
 
-    fn plan(bits: u16, mode: SpiMode, tx: WireBits) -> TransferPlan {
-        TransferPlan {
-            bits,
-            mode,
-            clock: clock_plan(0, bits, Clocks::BOARD),
-            cs_low_before: false,
-            cs_hold: false,
-            tx: tx.truncated(bits),
-        }
+    /// An SPI mode: clock polarity and phase.
+    #[derive(Clone, Copy, Debug)]
+    struct Mode {
+        cpol: bool,
+        cpha: bool,
     }
 
-    /// A pattern that tells bit positions apart.
-    fn pattern(seed: u32) -> WireBits {
-        let mut b = WireBits::ZERO;
-        let mut x = seed | 1;
-        for i in 0..256 {
-            x ^= x << 13;
-            x ^= x >> 17;
-            x ^= x << 5;
-            b.set(i, x & 1 != 0);
+    const MODE0: Mode = Mode {
+        cpol: false,
+        cpha: false,
+    };
+    const MODE1: Mode = Mode {
+        cpol: false,
+        cpha: true,
+    };
+    const MODE2: Mode = Mode {
+        cpol: true,
+        cpha: false,
+    };
+    const MODE3: Mode = Mode {
+        cpol: true,
+        cpha: true,
+    };
+
+    /// One transfer as a textbook SPI master clocks it: CS falls with SCK at
+    /// CPOL, then per bit a leading and a trailing half period, then CS
+    /// rises. CPHA = 0: MOSI holds bit i before leading edge i, changes on
+    /// trailing edges, the master samples on leading edges. CPHA = 1: MOSI
+    /// changes on leading edges, the master samples on trailing edges.
+    /// Returns each half period's lines and whether the master samples at
+    /// its end.
+    fn wave(tx: &[bool], mode: Mode, cs_low_before: bool, cs_hold: bool) -> Vec<(Lines, bool)> {
+        let n = tx.len().max(1);
+        let b = |i: usize| tx.get(i.min(n - 1)).copied().unwrap_or(false);
+        let at = |cs, sck, mosi, sample| (Lines { cs, sck, mosi }, sample);
+        let Mode { cpol, cpha } = mode;
+        let mut w = vec![
+            at(!cs_low_before, cpol, b(0), false),
+            at(false, cpol, b(0), !cpha),
+        ];
+        for i in 0..n {
+            w.push(at(false, !cpol, b(i), cpha));
+            let next = if cpha { b(i) } else { b(i + 1) };
+            w.push(at(false, cpol, next, !cpha && i + 1 < n));
         }
-        b
+        w.push(at(!cs_hold, cpol, b(n - 1), false));
+        w
+    }
+
+    /// Clock a transfer of `tx` through `c`: the bits the master receives.
+    fn run(c: &mut ShiftChain, tx: &[bool], mode: Mode) -> Vec<bool> {
+        run_framed(c, tx, mode, false, false)
+    }
+
+    fn run_framed(
+        c: &mut ShiftChain,
+        tx: &[bool],
+        mode: Mode,
+        cs_low_before: bool,
+        cs_hold: bool,
+    ) -> Vec<bool> {
+        let mut rx = vec![];
+        for (lines, sample) in wave(tx, mode, cs_low_before, cs_hold) {
+            let miso = c.step(lines);
+            if sample {
+                rx.push(miso);
+            }
+        }
+        assert_eq!(rx.len(), tx.len().max(1));
+        rx
+    }
+
+    /// 256 bits that tell positions apart.
+    fn pattern(seed: u32) -> Vec<bool> {
+        let mut x = seed | 1;
+        (0..256)
+            .map(|_| {
+                x ^= x << 13;
+                x ^= x >> 17;
+                x ^= x << 5;
+                x & 1 != 0
+            })
+            .collect()
     }
 
     /// A chain with `chips` of each kind and the inputs set to `inputs` (in
     /// receive-bit order).
-    fn chain(chips: usize, inputs: &WireBits) -> ShiftChain {
+    fn chain(chips: usize, inputs: &[bool]) -> ShiftChain {
         let mut c = ShiftChain::new(chips, chips);
-        for i in 0..chips * 8 {
-            c.set_rx_bit(i, inputs.get(i));
+        for (i, level) in inputs.iter().take(chips * 8).enumerate() {
+            c.set_rx_bit(i, *level);
         }
         c
     }
@@ -315,13 +373,13 @@ mod tests {
 
     #[test]
     fn mode_0_and_3_are_exact_in_both_directions() {
-        for mode in [SpiMode::MODE0, SpiMode::MODE3] {
+        for mode in [MODE0, MODE3] {
             let (ins, tx) = (pattern(1), pattern(2));
             let mut c = chain(2, &ins);
-            let rx = c.transfer(&plan(16, mode, tx));
+            let rx = run(&mut c, &tx[..16], mode);
             for i in 0..16 {
-                assert_eq!(rx.get(i), ins.get(i), "{mode:?} rx {i}");
-                assert_eq!(c.tx_bit_output(16, i), tx.get(i), "{mode:?} tx {i}");
+                assert_eq!(rx[i], ins[i], "{mode:?} rx {i}");
+                assert_eq!(c.tx_bit_output(16, i), tx[i], "{mode:?} tx {i}");
             }
             assert_eq!(c.latches(), 1);
         }
@@ -331,10 +389,10 @@ mod tests {
     fn mode_2_is_exact_by_the_edge_convention() {
         let (ins, tx) = (pattern(3), pattern(4));
         let mut c = chain(2, &ins);
-        let rx = c.transfer(&plan(16, SpiMode::MODE2, tx));
+        let rx = run(&mut c, &tx[..16], MODE2);
         for i in 0..16 {
-            assert_eq!(rx.get(i), ins.get(i), "rx {i}");
-            assert_eq!(c.tx_bit_output(16, i), tx.get(i), "tx {i}");
+            assert_eq!(rx[i], ins[i], "rx {i}");
+            assert_eq!(c.tx_bit_output(16, i), tx[i], "tx {i}");
         }
     }
 
@@ -342,33 +400,34 @@ mod tests {
     fn mode_1_loses_input_0_and_shifts_the_outputs_by_one() {
         let (ins, tx) = (pattern(5), pattern(6));
         let mut c = chain(2, &ins);
-        let rx = c.transfer(&plan(16, SpiMode::MODE1, tx));
+        let rx = run(&mut c, &tx[..16], MODE1);
         for i in 0..15 {
-            assert_eq!(rx.get(i), ins.get(i + 1), "rx {i}");
+            assert_eq!(rx[i], ins[i + 1], "rx {i}");
         }
         // The 16th sample is the SER tail (GND).
-        assert!(!rx.get(15));
+        assert!(!rx[15]);
         // '595: b0, b0, b1, …, b14.
-        assert_eq!(c.tx_bit_output(16, 0), tx.get(0));
+        assert_eq!(c.tx_bit_output(16, 0), tx[0]);
         for i in 1..16 {
-            assert_eq!(c.tx_bit_output(16, i), tx.get(i - 1), "tx {i}");
+            assert_eq!(c.tx_bit_output(16, i), tx[i - 1], "tx {i}");
         }
     }
 
     #[test]
     fn every_bit_count_reads_the_first_n_inputs_and_shifts_n_outputs() {
-        for n in [1u16, 7, 8, 9, 31, 32, 33, 255, 256] {
-            for mode in [SpiMode::MODE0, SpiMode::MODE3] {
-                let (ins, tx) = (pattern(u32::from(n)), pattern(u32::from(n) + 1000));
+        for n in [1usize, 7, 8, 9, 31, 32, 33, 255, 256] {
+            for mode in [MODE0, MODE3] {
+                let (ins, tx) = (pattern(n as u32), pattern(n as u32 + 1000));
                 let mut c = chain(32, &ins);
-                let rx = c.transfer(&plan(n, mode, tx));
-                let n = usize::from(n);
+                let rx = run(&mut c, &tx[..n], mode);
                 for i in 0..256 {
-                    // Received: the first n inputs, nothing after.
-                    assert_eq!(rx.get(i), i < n && ins.get(i), "n {n} rx {i}");
+                    // Received: the first n inputs.
+                    if i < n {
+                        assert_eq!(rx[i], ins[i], "n {n} rx {i}");
+                    }
                     // Latched: tx bit i at stage n − 1 − i; stages ≥ n still 0.
                     if i < n {
-                        assert_eq!(c.tx_bit_output(n, i), tx.get(i), "n {n} tx {i}");
+                        assert_eq!(c.tx_bit_output(n, i), tx[i], "n {n} tx {i}");
                     } else {
                         assert!(!c.stage(i), "n {n} stage {i}");
                     }
@@ -384,24 +443,16 @@ mod tests {
     fn cs_held_low_makes_two_transfers_one() {
         let (ins, tx) = (pattern(7), pattern(8));
         let mut c = chain(2, &ins);
-        let mut first = plan(8, SpiMode::MODE0, tx);
-        first.cs_hold = true;
-        let rx1 = c.transfer(&first);
+        let rx1 = run_framed(&mut c, &tx[..8], MODE0, false, true);
         assert_eq!(c.latches(), 0, "no latch while CS stays low");
         // Second half: bits 8..16 of the same 16-bit string.
-        let mut rest = WireBits::ZERO;
+        let rx2 = run_framed(&mut c, &tx[8..16], MODE0, true, false);
         for i in 0..8 {
-            rest.set(i, tx.get(i + 8));
+            assert_eq!(rx1[i], ins[i]);
+            assert_eq!(rx2[i], ins[i + 8], "the '165s were not reloaded");
         }
-        let mut second = plan(8, SpiMode::MODE0, rest);
-        second.cs_low_before = true;
-        let rx2 = c.transfer(&second);
-        for i in 0..8 {
-            assert_eq!(rx1.get(i), ins.get(i));
-            assert_eq!(rx2.get(i), ins.get(i + 8), "the '165s were not reloaded");
-        }
-        for i in 0..16 {
-            assert_eq!(c.tx_bit_output(16, i), tx.get(i));
+        for (i, bit) in tx.iter().take(16).enumerate() {
+            assert_eq!(c.tx_bit_output(16, i), *bit);
         }
         assert_eq!(c.latches(), 1);
     }
@@ -409,10 +460,15 @@ mod tests {
     #[test]
     fn inputs_changed_during_a_transfer_do_not_reach_it() {
         let mut c = ShiftChain::new(1, 0);
-        let p = plan(8, SpiMode::MODE0, WireBits::ZERO);
         let mut samples = vec![];
-        for (k, h) in wire(&p).enumerate() {
-            samples.extend(c.step(h));
+        for (k, (lines, sample)) in wave(&[false; 8], MODE0, false, false)
+            .into_iter()
+            .enumerate()
+        {
+            let miso = c.step(lines);
+            if sample {
+                samples.push(miso);
+            }
             if k == 2 {
                 c.set_input(0, 3, true); // CS is low: the snapshot stands
             }
@@ -429,10 +485,24 @@ mod tests {
         c.set_input(0, 7, true);
         // Idle low, then a mode-2 transfer starts with SCK high: one rising
         // edge with CS high.
-        let p = plan(8, SpiMode::MODE2, WireBits::ZERO);
-        let _ = c.transfer(&p);
+        let _ = run(&mut c, &[false; 8], MODE2);
         assert_eq!(c.rising_edges(), 9);
         assert!(c.miso(), "the '165 reloaded, not shifted");
+    }
+
+    #[test]
+    fn step_returns_the_level_on_miso_during_the_half_period() {
+        let mut c = ShiftChain::new(1, 0);
+        c.set_input(0, 7, true);
+        c.set_input(0, 6, false);
+        let low = Lines {
+            cs: false,
+            sck: false,
+            mosi: false,
+        };
+        assert!(c.step(low), "CS fell: input H frozen on QH");
+        assert!(!c.step(Lines { sck: true, ..low }), "rising edge: G on QH");
+        assert!(!c.step(low), "falling edges do nothing");
     }
 
     #[test]
@@ -462,25 +532,24 @@ mod tests {
         for i in 0..16 {
             chain.set_rx_bit(i, true);
         }
-        let plan = plan(16, SpiMode::MODE0, WireBits::ZERO);
+        let zeros = [false; 16];
         assert_eq!(
-            chain.transfer(&plan).words()[0],
-            0xFFFF,
+            run(&mut chain, &zeros, MODE0),
+            [true; 16],
             "pull-ups: all open"
         );
         chain.apply(ConsoleCommand {
             bit: 3,
             closed: true,
         });
-        assert_eq!(
-            chain.transfer(&plan).words()[0],
-            0xEFFF,
-            "bit 3 closed reads 0"
-        );
+        let rx = run(&mut chain, &zeros, MODE0);
+        for (i, b) in rx.iter().enumerate() {
+            assert_eq!(*b, i != 3, "bit 3 closed reads 0 (bit {i})");
+        }
         chain.apply(ConsoleCommand {
             bit: 3,
             closed: false,
         });
-        assert_eq!(chain.transfer(&plan).words()[0], 0xFFFF);
+        assert_eq!(run(&mut chain, &zeros, MODE0), [true; 16]);
     }
 }

@@ -108,16 +108,16 @@ impl Powerstep01 {
             Direction::Forward => pos.wrapping_add(s22),
             Direction::Reverse => pos.wrapping_sub(s22),
         };
-        self.set_reg(Register::AbsPos, pos);
+        self.set_reg(addr::ABS_POS, pos);
         // EL_POS counts 1/128 steps: one microstep = 2^(7 − STEP_SEL).
         let unit = 1u32 << (7u32.saturating_sub(self.step_shift()));
-        let el_steps = ((steps & 0x1FF) as u32).wrapping_mul(unit);
-        let el = self.reg(Register::ElPos);
+        let el_steps = ((steps & u128::from(fields::EL_POS)) as u32).wrapping_mul(unit);
+        let el = self.reg(addr::EL_POS);
         let el = match dir {
             Direction::Forward => el.wrapping_add(el_steps),
             Direction::Reverse => el.wrapping_sub(el_steps),
         };
-        self.set_reg(Register::ElPos, el);
+        self.set_reg(addr::EL_POS, el);
         // The shaft turns whatever ABS_POS says (1/128 steps).
         let turned = i64::try_from(steps.saturating_mul(u128::from(unit))).unwrap_or(i64::MAX);
         self.shaft = match dir {

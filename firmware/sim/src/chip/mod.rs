@@ -7,8 +7,8 @@
 //!   is the byte in the shift register that the next window clocks out;
 //!   [`Powerstep01::latch`] is the CS rising edge: the received byte is a
 //!   command byte or an argument byte (MSB first), then the next response
-//!   byte — or 0x00 — is loaded. Parsing uses [`Command::classify`] and
-//!   [`Command::decode`] from the powerstep layer; no encoding is repeated here.
+//!   byte — or 0x00 — is loaded. Parsing uses the model's own command table
+//!   ([`datasheet::command_byte`], [`datasheet::decode`]), not the driver's.
 //! * **No timeout.** A command waits for all of its argument bytes whatever
 //!   they are, so a half-sent command swallows the next bytes.
 //! * **Responses.** GetParam/GetStatus capture the value when the command byte
@@ -23,8 +23,8 @@
 //!   after the last argument byte, value unchanged); Move/StepClock unless
 //!   stopped; GoTo/GoTo_DIR/GoHome/GoMark while BUSY; ResetDevice outside HiZ.
 //!   [`Powerstep01::command_errors`] counts every refusal.
-//! * **Registers.** All 27 from [`REGISTERS`] with their reset values, masked
-//!   to their width on every write. ABS_POS is 22-bit two's complement and
+//! * **Registers.** All 27 from the model's [`REGISTERS`] with their reset
+//!   values, masked to their width on every write. ABS_POS is 22-bit two's complement and
 //!   wraps; SPEED reads the current speed; STATUS is assembled on read.
 //! * **Motion** in the chip's own units, integrated per 250 ns tick with exact
 //!   integer arithmetic: speed in 2⁻⁴⁰ full step/tick internally (SPEED =
@@ -46,104 +46,16 @@
 //! * Never panics on any input: all arithmetic on inputs is checked,
 //!   saturating or provably in range; no indexing by input values.
 //!
-//! # Strictness: what a real chip refuses or does, rule by rule
-//!
-//! The bridge is tested against this model, so the model must not be more
-//! lenient than the datasheet. Each rule below is held by the named test (in
-//! `tests.rs`), which fails against a model that skips the rule.
-//!
-//! | rule (facts doc / AN4290) | held by |
-//! |---|---|
-//! | GoTo, GoTo_DIR, GoHome, GoMark refused (CMD_ERROR) while BUSY | `goto_family_while_busy_is_refused`, `move_is_refused_while_a_run_is_still_accelerating` |
-//! | Move refused unless stopped (also at constant speed) | `move_while_moving_is_refused`, `move_while_running_at_constant_speed_is_refused` |
-//! | StepClock refused unless stopped | `step_clock_while_moving_is_refused` |
-//! | WS registers (ABS_POS, EL_POS, ACC, DEC, MIN_SPEED, ALARM_EN) refused unless stopped, value unchanged | `ws_register_written_while_moving_is_refused_after_the_last_argument` |
-//! | WH registers (STEP_MODE, CONFIG, GATECFG, BEMF) refused unless in HiZ | `wh_register_written_while_not_in_hiz_is_refused` |
-//! | … also right after a wake (HardStop) earlier in the same batch | `a_wh_register_write_after_a_wake_in_the_same_batch_is_refused` |
-//! | SW input: SW_F follows the level; SW_EVN latches the closing edge (until GetStatus) | `switch_closing_only_latches_the_event_when_sw_mode_is_1` |
-//! | CONFIG.SW_MODE = 0: a closing edge hard-stops any motion | `switch_closing_hard_stops_the_motor_when_sw_mode_is_0`, `go_until_hard_stops_when_sw_mode_is_0` |
-//! | GoUntil: ACT (ABS_POS reset or copy to MARK) on the closing edge, then SoftStop with DEC | `go_until_resets_abs_pos_on_switch_closing_then_soft_stops`, `go_until_copies_abs_pos_to_mark_with_act_1` |
-//! | ReleaseSW: max(MIN_SPEED, 5 step/s) until the switch opens, then ACT and HardStop | `release_sw_runs_slowly_until_the_switch_opens_then_hard_stops`, `release_sw_uses_min_speed_when_it_is_faster` |
-//! | Read-only and non-existent registers refused at the command byte | `set_param_to_a_read_only_register_is_refused_at_the_command_byte`, `set_param_to_a_non_existent_register_is_refused_at_the_command_byte` |
-//! | Unknown command bytes refused, no arguments consumed | `unknown_byte_sets_cmd_error_and_consumes_no_arguments` |
-//! | ResetDevice refused outside HiZ | `reset_device_outside_hiz_is_refused` |
-//! | Run speed clamped to [MIN_SPEED, MAX_SPEED] | `run_speed_is_clamped_to_min_and_max_speed`, `a_faster_run_accelerates_with_acc_up_to_max_speed_only` |
-//! | Speed changes ramp with the chip's own ACC (up) and DEC (down), never at once | `run_reaches_speed_after_the_analytic_acceleration_time`, `a_slower_run_decelerates_with_dec_not_at_once`, `soft_stop_decelerates_with_dec`, `run_in_the_opposite_direction_decelerates_then_reverses`, `lowering_max_speed_while_running_decelerates_to_it` |
-//! | Positioning never passes its target | `go_to_and_move_land_exactly_on_random_targets`, `positioning_arrives_slowly_and_brakes_with_dec` |
-//! | Every register at its reset value after power-up and reset (currents included), UVLO asserted | `power_up_registers_hold_their_table_reset_values`, `power_cycle_restores_every_register_including_the_currents`, `power_cycle_restores_reset_registers_and_asserts_uvlo` |
-//! | Latched flags (UVLO, OCD, STALL, SW_EVN, CMD_ERROR) stay until GetStatus; GetParam(STATUS) clears nothing | `get_status_clears_latched_flags_but_get_param_status_does_not`, `uvlo_reads_asserted_after_power_up_until_the_first_get_status`, `latched_thermal_status_stays_while_the_condition_persists` |
-//! | Overcurrent with OC_SD and thermal shutdown switch the bridges off and refuse motion | `overcurrent_with_oc_sd_goes_hiz_and_locks_the_bridges_until_get_status`, `thermal_shutdown_puts_bridges_in_hiz_until_the_condition_clears` |
-//! | ABS_POS is 22 bits and wraps | `abs_pos_wraps_at_22_bits` |
-//! | A half-sent command swallows the next bytes (no timeout) | `a_half_received_command_swallows_the_next_bytes` |
-//!
-//! # Modelling choices (UNCONFIRMED or unspecified behaviour)
-//!
-//! 1. **ResetDevice outside HiZ is refused** with CMD_ERROR (single ST-forum
-//!    observation, facts doc §2/§8.10).
-//! 2. **UVLO after reset:** power-up, ResetDevice and [`Fault::PowerCycle`]
-//!    leave UVLO asserted (latched) until the first GetStatus.
-//! 3. **Latching and clearing:** GetStatus returns STATUS, then clears SW_EVN
-//!    and CMD_ERROR and re-evaluates UVLO, OCD, STALL and TH_STATUS from the
-//!    current condition. UVLO dips, overcurrent and stall are modelled as
-//!    events (their condition is gone once injected), thermal as a persisting
-//!    condition ([`Fault::ThermalNormal`] ends it). TH_STATUS is treated as
-//!    latched (facts doc: UNCONFIRMED). UVLO_ADC follows the ADCIN condition
-//!    ([`Fault::AdcinLow`] / [`Fault::AdcinNormal`]) and is not latched
-//!    (UNCONFIRMED); ADC_OUT keeps its table reset value.
-//! 4. **Oscillator error** ([`Powerstep01::set_clock_error_ppm`], 0 by
-//!    default): the chip's time runs `1 + ppm/10⁶` as fast as the caller's,
-//!    like an internal 16 MHz oscillator a few % off. The tolerance of the
-//!    real one is not in the facts doc (UNCONFIRMED); the motion tests use
-//!    ±5 %.
-//! 5. **Stall** asserts STALL_A (bit 14, ST naming) only; it does not stop
-//!    the motor (the chip only flags it).
-//! 6. **Bridge lock:** after an overcurrent with CONFIG.OC_SD = 1, and while
-//!    the thermal condition is shutdown, commands that would enable the
-//!    bridges (motion and stop commands) are refused with CMD_ERROR; the
-//!    overcurrent lock is released by GetStatus.
-//! 7. **Floor speed:** MIN_SPEED (bits 11:0) is the start speed of every
-//!    motion from rest and the speed at which decelerations end (a SoftStop
-//!    stops when the speed would drop below it). LSPD_OPT (bit 12) is
-//!    ignored. When MAX_SPEED < MIN_SPEED, MAX_SPEED wins.
-//! 8. **ACC = 0xFFF** is infinite acceleration (speed jumps to the target);
-//!    DEC = 0xFFF is an ordinary finite deceleration. ACC or DEC = 0 never
-//!    changes speed in that direction (no hang, the motor just keeps going).
-//! 9. **Direction changes:** Run/GoUntil/GoTo… in the opposite direction while
-//!    moving decelerate with DEC to the floor speed, stop, then start the
-//!    other way. DIR reads the direction the motor actually turns.
-//! 10. **Positioning while moving** (GoTo while a Run is at constant speed —
-//!     accepted because BUSY is released): in the wrong direction the motor
-//!     brakes, reverses and comes back; in the right direction with less room
-//!     than the braking distance it brakes and stops abruptly on the target
-//!     rather than overshoot. GoTo to the current microstep while moving stops
-//!     at once on it.
-//! 11. **GoUntil** waits for a SW falling edge (a switch already closed does
-//!     not count), applies ACT, then SoftStops — or HardStops when
-//!     CONFIG.SW_MODE is 0, because the switch hard-stop interrupt applies to
-//!     every edge.
-//!     **ReleaseSW** moves at max(MIN_SPEED, 5 step/s) (clamped by MAX_SPEED)
-//!     until the switch opens, applies ACT, then HardStops; sent while the
-//!     switch is already open it applies ACT at once and does not move.
-//! 12. **Step-clock mode** is left by any motion, stop or HiZ command; each
-//!     [`Powerstep01::step_clock_pulse`] moves one microstep (ignored in HiZ).
-//! 13. **Dead device** ([`Fault::Dead`]): SDO stuck at the given byte, input
-//!     ignored, the motion engine frozen with bridges off. [`Fault::Revive`]
-//!     reconnects it with its state kept (bridges still in HiZ, parser idle,
-//!     pending response dropped). A power cycle does not revive a dead device.
-//! 14. **Power-up:** HiZ, stopped, DIR = forward, UVLO asserted.
-//! 15. **EL_POS** follows the motion (1/128 units, 9 bits).
-//! 16. **Log:** [`Powerstep01::received`] holds the last 32 fully received,
-//!     decodable commands other than NOP (also those refused for a state
-//!     reason); NOPs — the chain's padding — are not logged, and bytes
-//!     refused at the command byte are not commands and are only counted as
-//!     errors. The log survives ResetDevice and power cycles.
+//! The rules the model enforces and its modelling choices are listed in the
+//! crate doc, with the datasheet or AN4290 section each one comes from.
 
 use heapless::Deque;
+use powerstep01::{Command, Direction, Register, Status, SwitchAction, ThermalStatus};
 
-use crate::powerstep::commands::{Command, CommandByte, Direction, SwitchAction};
-use crate::powerstep::fields::Config;
-use crate::powerstep::registers::{sign_extend_22, wrap_22, Access, Register, REGISTERS};
-use crate::powerstep::status::{bits, MotorStatus, Status, ThermalStatus};
+use crate::datasheet::{
+    self, addr, config, fields, sign_extend_22, status as bits, status::mot, StatusWord, REGISTERS,
+};
+use crate::vocab;
 
 /// Length of one chip tick (16 MHz oscillator).
 pub const TICK_NS: u64 = 250;
@@ -158,13 +70,11 @@ const POS_MASK: u32 = 0x3F_FFFF;
 const RELEASE_SW_SPEED: u64 = 1_374_390;
 /// "Infinite" acceleration (ACC = 0xFFF): larger than any speed difference.
 const INFINITE_ACC: u64 = 1 << FRAC_BITS;
-const ACC_INFINITE_CODE: u32 = 0xFFF;
 /// Zero-tick state changes allowed in a row before the engine gives up (defensive).
 const MAX_INSTANT_STEPS: u32 = 64;
 
 /// A fault or event injected from outside (test backdoor).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Fault {
     /// Supply dip: UVLO latched, bridges to HiZ, motion stops.
     Uvlo,
@@ -243,7 +153,7 @@ pub struct HomeCam {
 #[derive(Clone, Debug)]
 pub struct Powerstep01 {
     /// Register storage, index = address − 1. ABS_POS lives here (raw 22 bit).
-    regs: [u32; 27],
+    regs: [u32; REGISTERS.len()],
     // --- SPI parser ---
     cmd: u8,
     need: u8,
@@ -310,15 +220,16 @@ mod spi;
 #[cfg(test)]
 mod tests;
 
-fn reg_index(r: Register) -> usize {
-    usize::from(r.address()).saturating_sub(1)
+/// Mask of the register at `address` (0 where there is none).
+fn mask(address: u8) -> u32 {
+    datasheet::register(address).map_or(0, |r| r.mask())
 }
 
 impl Powerstep01 {
     /// A device just powered up: reset registers, HiZ, UVLO asserted.
     pub fn new() -> Self {
         let mut d = Powerstep01 {
-            regs: [0; 27],
+            regs: [0; REGISTERS.len()],
             cmd: 0,
             need: 0,
             got: 0,
@@ -359,8 +270,8 @@ impl Powerstep01 {
     /// Back to the power-up state. Keeps what is physical or a test backdoor:
     /// switch level, thermal condition, dead state, time remainder, log, counters.
     fn power_up(&mut self) {
-        for (slot, info) in self.regs.iter_mut().zip(REGISTERS.iter()) {
-            *slot = info.reset & info.register.mask();
+        for (slot, spec) in self.regs.iter_mut().zip(REGISTERS.iter()) {
+            *slot = spec.reset & spec.mask();
         }
         self.need = 0;
         self.got = 0;
@@ -384,51 +295,61 @@ impl Powerstep01 {
 
     // ------------------------------------------------------ registers ----
 
-    fn reg(&self, r: Register) -> u32 {
-        self.regs.get(reg_index(r)).copied().unwrap_or(0)
+    /// The stored value at `address` (0 where there is no register).
+    fn reg(&self, address: u8) -> u32 {
+        datasheet::slot(address)
+            .and_then(|i| self.regs.get(i))
+            .copied()
+            .unwrap_or(0)
     }
 
-    fn set_reg(&mut self, r: Register, v: u32) {
-        if let Some(slot) = self.regs.get_mut(reg_index(r)) {
-            *slot = v & r.mask();
+    fn set_reg(&mut self, address: u8, v: u32) {
+        if let Some(slot) = datasheet::slot(address).and_then(|i| self.regs.get_mut(i)) {
+            *slot = v & mask(address);
         }
     }
 
-    fn write_reg(&mut self, r: Register, v: u32) {
-        match r {
-            Register::Speed | Register::Status => {}
-            Register::AbsPos => {
-                self.set_reg(r, v);
+    fn write_reg(&mut self, address: u8, v: u32) {
+        match address {
+            addr::SPEED | addr::STATUS => {}
+            addr::ABS_POS => {
+                self.set_reg(address, v);
                 self.frac = 0;
             }
-            Register::StepMode => {
-                if (v ^ self.reg(r)) & 7 != 0 {
+            addr::STEP_MODE => {
+                if (v ^ self.reg(address)) & fields::STEP_SEL != 0 {
                     self.frac = 0;
                 }
-                self.set_reg(r, v);
+                self.set_reg(address, v);
             }
-            _ => self.set_reg(r, v),
+            _ => self.set_reg(address, v),
         }
     }
 
     fn abs_raw(&self) -> u32 {
-        self.reg(Register::AbsPos)
+        self.reg(addr::ABS_POS)
+    }
+
+    /// The value at `address` as GetParam would return it (raw, masked to
+    /// its width; 0 where there is no register).
+    pub fn register_at(&self, address: u8) -> u32 {
+        let v = match address {
+            addr::SPEED => self.speed_reg(),
+            addr::STATUS => u32::from(self.status_raw()),
+            _ => self.reg(address),
+        };
+        v & mask(address)
     }
 
     /// Register value as GetParam would return it (raw, masked to its width).
     pub fn register(&self, r: Register) -> u32 {
-        let v = match r {
-            Register::Speed => self.speed_reg(),
-            Register::Status => u32::from(self.status().raw()),
-            _ => self.reg(r),
-        };
-        v & r.mask()
+        self.register_at(vocab::address(r))
     }
 
     /// Backdoor write, no access rule (masked to the width). SPEED and STATUS
     /// are computed and ignore this.
     pub fn set_register_raw(&mut self, r: Register, v: u32) {
-        self.write_reg(r, v);
+        self.write_reg(vocab::address(r), v);
     }
 
     /// The motor shaft's position, 1/128 full steps (see the field).
@@ -456,15 +377,15 @@ impl Powerstep01 {
     // --------------------------------------------------------- status ----
 
     fn step_shift(&self) -> u32 {
-        self.reg(Register::StepMode) & 7
+        self.reg(addr::STEP_MODE) & fields::STEP_SEL
     }
 
     fn vmax(&self) -> u64 {
-        u64::from(self.reg(Register::MaxSpeed) & 0x3FF) << 22
+        u64::from(self.reg(addr::MAX_SPEED) & fields::MAX_SPEED) << 22
     }
 
     fn vmin(&self) -> u64 {
-        u64::from(self.reg(Register::MinSpeed) & 0xFFF) << 16
+        u64::from(self.reg(addr::MIN_SPEED) & fields::MIN_SPEED) << 16
     }
 
     /// Start/stop floor speed (MIN_SPEED, never above MAX_SPEED).
@@ -473,8 +394,8 @@ impl Powerstep01 {
     }
 
     fn acc(&self) -> u64 {
-        let a = self.reg(Register::Acc);
-        if a == ACC_INFINITE_CODE {
+        let a = self.reg(addr::ACC);
+        if a == fields::ACC_INFINITE {
             INFINITE_ACC
         } else {
             u64::from(a)
@@ -482,7 +403,7 @@ impl Powerstep01 {
     }
 
     fn dec(&self) -> u64 {
-        u64::from(self.reg(Register::Dec))
+        u64::from(self.reg(addr::DEC))
     }
 
     fn speed_target(&self, spd: u64) -> u64 {
@@ -524,56 +445,69 @@ impl Powerstep01 {
         self.sw_closed
     }
 
-    fn motor_status(&self) -> MotorStatus {
+    /// MOT_STATUS code ([`mot`]).
+    fn motor_status(&self) -> u16 {
         let v = self.v;
         match self.motion {
-            Motion::Idle => MotorStatus::Stopped,
+            Motion::Idle => mot::STOPPED,
             Motion::Stopping { .. } => {
                 if v > 0 {
-                    MotorStatus::Decelerating
+                    mot::DECELERATING
                 } else {
-                    MotorStatus::Stopped
+                    mot::STOPPED
                 }
             }
             Motion::Speed { dir, spd, .. } => {
                 let vt = self.speed_target(spd);
                 if v > 0 && dir != self.dir {
-                    MotorStatus::Decelerating
+                    mot::DECELERATING
                 } else if v < vt {
-                    MotorStatus::Accelerating
+                    mot::ACCELERATING
                 } else if v > vt {
-                    MotorStatus::Decelerating
+                    mot::DECELERATING
                 } else if v == 0 {
-                    MotorStatus::Stopped
+                    mot::STOPPED
                 } else {
-                    MotorStatus::ConstantSpeed
+                    mot::CONSTANT_SPEED
                 }
             }
             Motion::Position { dir, braking, .. } => {
                 if v > 0 && dir != self.dir {
-                    MotorStatus::Decelerating
+                    mot::DECELERATING
                 } else if braking {
                     if v > self.floor() {
-                        MotorStatus::Decelerating
+                        mot::DECELERATING
                     } else {
-                        MotorStatus::ConstantSpeed
+                        mot::CONSTANT_SPEED
                     }
                 } else {
                     let vmax = self.vmax();
                     if v < vmax {
-                        MotorStatus::Accelerating
+                        mot::ACCELERATING
                     } else if v > vmax {
-                        MotorStatus::Decelerating
+                        mot::DECELERATING
                     } else {
-                        MotorStatus::ConstantSpeed
+                        mot::CONSTANT_SPEED
                     }
                 }
             }
         }
     }
 
-    /// STATUS as GetParam(STATUS) reads it (nothing is cleared).
+    /// STATUS as GetParam(STATUS) reads it (nothing is cleared), in the
+    /// driver crate's vocabulary type (the bits are the model's, see
+    /// [`datasheet::status`]).
     pub fn status(&self) -> Status {
+        Status(self.status_raw())
+    }
+
+    /// STATUS read with the model's own layout.
+    pub fn status_word(&self) -> StatusWord {
+        StatusWord(self.status_raw())
+    }
+
+    /// The 16 STATUS bits (nothing is cleared).
+    pub fn status_raw(&self) -> u16 {
         let mut s: u16 = bits::STALL_B;
         if !self.adcin_low {
             s |= bits::UVLO_ADC;
@@ -593,7 +527,7 @@ impl Powerstep01 {
         if self.dir == Direction::Forward {
             s |= bits::DIR;
         }
-        s |= (self.motor_status() as u16) << 5;
+        s |= (self.motor_status() << bits::MOT_SHIFT) & bits::MOT_STATUS;
         if self.cmd_error {
             s |= bits::CMD_ERROR;
         }
@@ -603,19 +537,29 @@ impl Powerstep01 {
         if !self.uvlo {
             s |= bits::UVLO;
         }
-        s |= u16::from(self.th_latched & 3) << 11;
+        s |= (u16::from(self.th_latched) << bits::TH_SHIFT) & bits::TH_STATUS;
         if !self.ocd {
             s |= bits::OCD;
         }
         if !self.stall {
             s |= bits::STALL_A;
         }
-        Status(s)
+        s
     }
 
     /// TH_STATUS as it will read.
     pub fn thermal(&self) -> ThermalStatus {
-        ThermalStatus::from_bits(u16::from(self.th_latched))
+        datasheet::thermal_status(self.th_latched)
+    }
+
+    /// CONFIG.SW_MODE = 1: a switch turn-on edge is only reported.
+    fn sw_user(&self) -> bool {
+        self.reg(addr::CONFIG) & config::SW_MODE != 0
+    }
+
+    /// CONFIG.OC_SD = 1: an overcurrent switches the bridges off.
+    fn oc_shutdown(&self) -> bool {
+        self.reg(addr::CONFIG) & config::OC_SD != 0
     }
 
     // ------------------------------------------------------ inspection ----

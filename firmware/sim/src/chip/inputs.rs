@@ -2,6 +2,7 @@
 //! injected faults (test backdoor).
 
 use super::*;
+use crate::datasheet::status::th;
 
 impl Powerstep01 {
     // ---------------------------------------------------- environment ----
@@ -30,7 +31,7 @@ impl Powerstep01 {
             return;
         }
         // SW_MODE = 0: every turn-on edge is a HardStop interrupt.
-        let hard = !Config::from_reg(self.reg(Register::Config) as u16).sw_user;
+        let hard = !self.sw_user();
         if closed {
             self.sw_evn = true;
             if let Motion::Speed {
@@ -92,9 +93,9 @@ impl Powerstep01 {
         if self.dead.is_some() {
             // A dead device reacts to nothing but the thermal condition.
             match fault {
-                Fault::ThermalWarning => self.th_cond = 1,
-                Fault::ThermalShutdown => self.th_cond = 2,
-                Fault::ThermalNormal => self.th_cond = 0,
+                Fault::ThermalWarning => self.th_cond = th::WARNING,
+                Fault::ThermalShutdown => self.th_cond = th::BRIDGE_SHUTDOWN,
+                Fault::ThermalNormal => self.th_cond = th::NORMAL,
                 _ => {}
             }
             return;
@@ -107,21 +108,21 @@ impl Powerstep01 {
             Fault::PowerCycle => self.power_up(),
             Fault::Overcurrent => {
                 self.ocd = true;
-                if Config::from_reg(self.reg(Register::Config) as u16).oc_shutdown {
+                if self.oc_shutdown() {
                     self.ocd_lock = true;
                     self.hiz_now();
                 }
             }
             Fault::ThermalWarning => {
-                self.th_cond = 1;
-                self.th_latched = self.th_latched.max(1);
+                self.th_cond = th::WARNING;
+                self.th_latched = self.th_latched.max(th::WARNING);
             }
             Fault::ThermalShutdown => {
-                self.th_cond = 2;
-                self.th_latched = self.th_latched.max(2);
+                self.th_cond = th::BRIDGE_SHUTDOWN;
+                self.th_latched = self.th_latched.max(th::BRIDGE_SHUTDOWN);
                 self.hiz_now();
             }
-            Fault::ThermalNormal => self.th_cond = 0,
+            Fault::ThermalNormal => self.th_cond = th::NORMAL,
             Fault::Stall => self.stall = true,
             Fault::AdcinLow => self.adcin_low = true,
             Fault::AdcinNormal => self.adcin_low = false,

@@ -1,0 +1,25 @@
+//! The I/O extension's transfers clocked through the simulated shift
+//! registers: `stepbridge_sim`'s [`ShiftChain`] takes line levels, not the
+//! extension's plans, so the plan's wire ([`wire()`]) is turned into levels
+//! here, half period by half period.
+
+use bridge_logic::ioext::{wire, TransferPlan, WireBits};
+use stepbridge_sim::{Lines, ShiftChain};
+
+/// Run `plan` through `chain`: the bits the master samples, in wire order.
+pub fn transfer(chain: &mut ShiftChain, plan: &TransferPlan) -> WireBits {
+    let mut rx = WireBits::ZERO;
+    let mut k = 0;
+    for h in wire(plan) {
+        let miso = chain.step(Lines {
+            cs: h.cs,
+            sck: h.sck,
+            mosi: h.mosi,
+        });
+        if h.sample {
+            rx.set(k, miso);
+            k += 1;
+        }
+    }
+    rx
+}
