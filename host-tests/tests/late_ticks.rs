@@ -20,9 +20,9 @@ use bridge_logic::motion::axis::logical_to_physical;
 use bridge_logic::motion::Mode;
 use bridge_logic::postep60::{Board, Request, Settings};
 use bridge_logic::powerstep::chain::{clock_windows, Frames, MAX_DEVICES, MAX_WINDOWS};
-use stepbridge_sim::SimChain;
 use host_tests::rng::Rng;
 use host_tests::sim_bridge::{all_settled, chip, new_bridge, TICK_US};
+use stepbridge_sim::SimChain;
 
 const BOARD: Board = Board::REFERENCE;
 const EMPTY: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS];

@@ -29,15 +29,15 @@
 //! resubmits at once): the stream's cadence is the bridge's own.
 
 use bridge_logic::bridge::{boot_settings, Bridge, ResetCause, ResetTarget, RunMode};
+use bridge_logic::persist::sim::SimFlash;
 use bridge_logic::persist::{Store, StoreError, MAX_IMAGE};
 use bridge_logic::postep60::analog::AnalogSample;
 use bridge_logic::postep60::settings::IMAGE_LEN;
 use bridge_logic::postep60::Board;
 use bridge_logic::rate::TICK_HZ;
-use bridge_logic::persist::sim::SimFlash;
-use stepbridge_sim::SimChain;
 use bridge_logic::transport::usb::{self as hid, PoStepHid, REPORT_LEN};
 use host_tests::clock::SimClock;
+use stepbridge_sim::SimChain;
 use usb_device::bus::UsbBusAllocator;
 use usb_device::device::{UsbDevice, UsbDeviceState};
 
