@@ -729,7 +729,7 @@ fn current_speed_0x44_reads_speeds_above_32767() {
 
 #[test]
 fn adcin_undervoltage_is_not_a_fault() {
-    // An unused ADCIN may read as undervoltage for good (facts doc §2).
+    // An unused ADCIN may read as undervoltage for good (datasheet).
     let mut b = line();
     b.chip_mut(0).inject(Fault::AdcinLow);
     b.run(20);

@@ -6,7 +6,7 @@
 //! Our server implements FC 0x03, 0x06 and 0x10 only, so where libmodbus's
 //! own server answers 03 for coils, discrete inputs, input registers and
 //! FC 0x17, ours answers 01 first (the Modbus spec checks the function
-//! before the quantity). Exceptions come back as function | 0x80 (SPEC.md).
+//! before the quantity). Exceptions come back as function | 0x80 (the product rules (`docs/PRODUCT.md`)).
 //! Another server on the bus is id 18 (0x12), libmodbus's INVALID_SERVER_ID.
 
 use bridge_logic::postep60::Settings;

@@ -245,7 +245,7 @@ impl Truth {
                     mode: self.mode[k],
                 };
                 self.clean[k] = None;
-                // Acknowledged: every later read says 0 (SPEC.md).
+                // Acknowledged: every later read says 0 (the product rules (`docs/PRODUCT.md`)).
                 let p = self.position(k);
                 if p != 0 {
                     self.lost

@@ -34,7 +34,7 @@ use super::commands::Command;
 use super::registers::Register;
 use super::status::Status;
 
-/// Longest supported chain (SPEC.md: 1 ≤ N ≤ 8).
+/// Longest supported chain (the product rules (`docs/PRODUCT.md`): 1 ≤ N ≤ 8).
 pub const MAX_DEVICES: usize = 8;
 /// Commands one device may get in one batch.
 pub const MAX_COMMANDS: usize = 3;

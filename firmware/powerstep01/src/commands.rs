@@ -1,9 +1,9 @@
-//! The 19 powerSTEP01 application commands (facts doc §3, AN4290 table 1).
+//! The 19 powerSTEP01 application commands (datasheet, AN4290 table 1).
 //!
 //! [`Command::encode`] produces the exact bytes (command byte first, argument
 //! bytes MSB first); [`Command::decode`] is its inverse and is what the
 //! simulator uses to parse what it receives. GetStatus is **0xD0**; 0xB0 is
-//! SoftStop (SPEC.md, facts doc §3.1).
+//! SoftStop (`docs/PRODUCT.md`: the datasheet's command table).
 
 use super::registers::{wrap_22, Register};
 

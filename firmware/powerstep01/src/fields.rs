@@ -1,5 +1,5 @@
 //! Typed views of the packed configuration registers: STEP_MODE (0x16),
-//! ALARM_EN (0x17) and CONFIG (0x1A), facts doc §1.1.
+//! ALARM_EN (0x17) and CONFIG (0x1A), the datasheet.
 
 /// STEP_SEL: microsteps per full step = 2^STEP_SEL.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]

@@ -1,15 +1,15 @@
-//! The powerSTEP01 register map (facts doc §1, ST AN4290 table 4).
+//! The powerSTEP01 register map (datasheet, ST AN4290 table 4).
 //!
 //! One table, [`REGISTERS`], is the single source of truth for address,
 //! width, SPI byte count, access class, names and reset value. Everything
 //! else (command encoding, the simulator, the scheduler) asks this table.
 //!
-//! Deviation from the facts doc, decided in `docs/DECISIONS.md`: EL_POS is
+//! Deviation from the datasheet, decided in `docs/DECISIONS.md`: EL_POS is
 //! classed **WH** (writable only in HiZ) as ST's own protocol note (AN4290,
 //! table 4) says, not WS. The stricter class is safe for the bridge (it never
 //! writes EL_POS while the bridges are on) and makes the simulator catch it.
 
-/// Who may write a register, and when (facts doc §1 "Access").
+/// Who may write a register, and when (datasheet "Access").
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Access {
@@ -85,7 +85,8 @@ pub struct RegisterInfo {
     pub voltage_mode_name: &'static str,
     /// `None` where the register only exists in voltage mode.
     pub current_mode_name: Option<&'static str>,
-    /// Power-up value (facts doc §1; current-mode values deduced from shared storage).
+    /// Power-up value (datasheet; the current-mode registers share their
+    /// storage with the voltage-mode ones, so they reset to the same values).
     pub reset: u32,
 }
 
@@ -378,7 +379,7 @@ mod tests {
             0x000000,
             WhenStopped,
         ),
-        // EL_POS: facts doc says WS, AN4290 table 4 says HiZ only: we take WH.
+        // EL_POS: datasheet says WS, AN4290 table 4 says HiZ only: we take WH.
         (0x02, "EL_POS", Some("EL_POS"), 9, 2, 0x000, WhenHiZ),
         (0x03, "MARK", Some("MARK"), 22, 3, 0x000000, Always),
         (0x04, "SPEED", Some("SPEED"), 20, 3, 0x00000, ReadOnly),

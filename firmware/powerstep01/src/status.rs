@@ -1,9 +1,9 @@
-//! The STATUS register (0x1B), facts doc §2.
+//! The STATUS register (0x1B), the datasheet.
 //!
 //! [`Status`] wraps the raw 16 bits and answers questions with the polarity
 //! already handled: `busy()` is true while a command executes although the
 //! BUSY bit is active-low; `uvlo()`, `ocd()`, `stall_*()` likewise. The two
-//! stall bits are disputed between sources (facts doc §8.2), so the bridge
+//! stall bits are disputed between sources (datasheet), so the bridge
 //! only relies on [`Status::stalled`] (either bit).
 
 /// Bit masks of STATUS, raw (no polarity applied).
@@ -28,7 +28,7 @@ pub mod bits {
     pub const TH_STATUS: u16 = 0b11 << 11;
     /// Active low, latched.
     pub const OCD: u16 = 1 << 13;
-    /// Active low, latched (ST driver's naming; see facts doc §8.2).
+    /// Active low, latched (ST driver's naming; see the datasheet).
     pub const STALL_A: u16 = 1 << 14;
     /// Active low, latched.
     pub const STALL_B: u16 = 1 << 15;
@@ -173,7 +173,7 @@ mod tests {
 
     #[test]
     fn forum_value_after_soft_stop_decodes_as_idle_forward_with_uvlo_latched() {
-        // facts doc §2: 0xE012 read after SoftStop.
+        // the datasheet: 0xE012 read after SoftStop.
         let s = Status(0xE012);
         assert!(!s.hiz());
         assert!(!s.busy());

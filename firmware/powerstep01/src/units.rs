@@ -1,5 +1,5 @@
 //! Unit conversions between physical quantities and powerSTEP01 register
-//! values (facts doc §4 and §6). Exact integer arithmetic only.
+//! values (datasheet and §6). Exact integer arithmetic only.
 //!
 //! Conventions:
 //! * Speeds are **full steps per second** in Q16.16 (`u32`, `value << 16`),

@@ -5,7 +5,7 @@
 //!
 //! # What it guarantees
 //!
-//! * **Addresses** (SPEC.md): axis k answers `base + k`. On I2C the primary
+//! * **Addresses** (the product rules (`docs/PRODUCT.md`)): axis k answers `base + k`. On I2C the primary
 //!   own address (OAR1) is axis 0's and the secondary (OAR2) axis 1's; the
 //!   extension command 0x70 selects another axis for the following commands
 //!   on that address. An address change (0x04) sent to axis k moves the base

@@ -6,7 +6,7 @@
 //!
 //! Logical steps are 1/2^L full step (PoStep60 step mode L = 0 … 8), physical
 //! microsteps 1/2^S full step (the chip's STEP_SEL S). Chip speeds and
-//! accelerations count full steps (facts doc §4).
+//! accelerations count full steps (datasheet).
 
 // Conversions widen to i64/u64/i128 before they multiply and shift by at
 // most 8 + 33 bits; every input is a u32 or a clamped speed (function docs).

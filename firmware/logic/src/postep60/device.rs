@@ -9,7 +9,7 @@
 //!   answers an exception).
 //! * **Mode gating** (manual 8.3.32, 8.3.36): Set position only in position
 //!   or BINx mode, Set requested speed / invert only in auto run. Set driver
-//!   mode accepts 1, 4, 5, 6 (SPEC.md); 1 needs a board that routes STEP to
+//!   mode accepts 1, 4, 5, 6 (the product rules (`docs/PRODUCT.md`)); 1 needs a board that routes STEP to
 //!   the chips (the reference board does not: [`CommandError::Unsupported`]);
 //!   3 (DC) and Set PWM are always unsupported: a powerSTEP01 cannot drive a
 //!   DC motor.
@@ -365,7 +365,7 @@ impl Device {
     }
 
     /// Clamp the speed/acceleration settings to what the axis's chip can
-    /// follow in its step mode (SPEC.md "Limits"), hand them to the axis,
+    /// follow in its step mode (product rules, "Limits" (`docs/PRODUCT.md`)), hand them to the axis,
     /// and count a clamp. The clamped values are what reads return.
     pub fn clamp_limits(&mut self, axis: &mut Axis) {
         let cap = axis.limit_cap();
@@ -494,7 +494,7 @@ impl Device {
             f |= fault::AOCP | fault::BOCP;
         }
         // UVLO_ADC is not a fault here: with ADCIN unused it may read
-        // asserted for good (facts doc §2, the 0xE012 observation).
+        // asserted for good (datasheet, the 0xE012 observation).
         if s.uvlo() {
             f |= fault::UVLO;
         }

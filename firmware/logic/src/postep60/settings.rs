@@ -257,7 +257,7 @@ pub const WATCHED_BUSES: usize = 3;
 pub const TEMPERATURE_LIMIT_MAX: u8 = 120;
 
 impl AxisSettings {
-    /// Factory settings (SPEC.md: mode 4, position control).
+    /// Factory settings (the product rules (`docs/PRODUCT.md`): mode 4, position control).
     pub const FACTORY: AxisSettings = AxisSettings {
         full_scale: Current::from_milliamps(1000),
         idle: Current::from_milliamps(500),

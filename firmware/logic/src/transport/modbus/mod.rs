@@ -1,4 +1,4 @@
-//! Modbus RTU server (PoStep60 manual §9, SPEC.md): serial-line framing,
+//! Modbus RTU server (PoStep60 manual §9, the product rules (`docs/PRODUCT.md`)): serial-line framing,
 //! server ids, and the PoStep60 register map of [`map`].
 //!
 //! # Assumptions
@@ -54,7 +54,7 @@
 //!   that answers BYTE0 now — and nothing is ever sent back, not even an
 //!   exception. Broadcast reads and malformed broadcasts do nothing.
 //! * Exceptions, checked in the Modbus spec's order (response function code
-//!   = function | 0x80, SPEC.md): 01 the function is not 0x03/0x06/0x10;
+//!   = function | 0x80, the product rules (`docs/PRODUCT.md`)): 01 the function is not 0x03/0x06/0x10;
 //!   03 quantity outside 1..=125 (0x03) / 1..=123 (0x10), byte count ≠
 //!   2 × quantity, or a PDU length that does not fit the function; 02 no
 //!   such command (including the extension space, high address byte ≠ 0,
