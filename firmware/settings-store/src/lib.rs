@@ -17,7 +17,7 @@
 //! 3. **Wear-levelled.** Records are appended to the active sector; a sector
 //!    is erased only when the store moves to it because the active one is
 //!    full, so the two sectors are erased alternately, once per
-//!    `ERASE_SIZE / record size` saves (≥ 125 saves of a full image per
+//!    `ERASE_SIZE / record size` saves (84 saves of a full image per
 //!    erase with the STM32F405's 128 KiB sectors). `load` never writes.
 //! 4. **Unreadable is reported.** `load` says [`StoreError::Empty`] when both
 //!    sectors are completely erased (factory-fresh) and
@@ -76,7 +76,7 @@
 //! | 20+n+p      | 4     | commit word `"DONE"`                             |
 //!
 //! A record takes [`record_size`]`(n)` = 24 + n + p bytes, at most
-//! [`MAX_RECORD`] = 1048; records follow each other without gaps from the
+//! [`MAX_RECORD`] = 1560; records follow each other without gaps from the
 //! start of a sector. The header CRC makes the length trustworthy, so a
 //! scan can step over a record whose payload is bad. A record is *intact*
 //! when both CRCs and the commit word match; it is *loadable* when it is

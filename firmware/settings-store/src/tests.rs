@@ -500,6 +500,8 @@ fn device_geometry_erases_once_per_84_full_saves() {
     for i in 0..300u32 {
         store.save(&[i as u8; MAX_IMAGE]).unwrap();
     }
+    // The module doc states both numbers.
+    assert_eq!(MAX_RECORD, 1560);
     assert_eq!((128 * 1024) / MAX_RECORD, 84);
     assert_eq!(store.stats().erases, 4, "saves 1, 85, 169 and 253 erase");
     assert_eq!(load(&mut store).unwrap(), [43; MAX_IMAGE]);

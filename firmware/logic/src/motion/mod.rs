@@ -1,6 +1,7 @@
-//! Motion: the trapezoidal profile generator and (later in this layer) the
-//! axis output stage that turns setpoints into chain commands. Knows nothing
-//! of bytes on any bus.
+//! Motion: the trapezoidal profile generator ([`profile`]), the axis output
+//! stage that turns its setpoints into chain commands ([`axis`]), homing
+//! ([`homing`]) and the group of axes ticked together ([`group`]). Knows
+//! nothing of bytes on any bus.
 
 pub mod axis;
 pub mod divisor;
