@@ -342,11 +342,10 @@ mod tests {
                         continue;
                     };
                     let Engine::Timer { psc, period } = p.clock.engine else {
-                        unreachable!()
+                        panic!("a timer plan on the SPI engine")
                     };
                     // ccr_sck ticks of (PSC + 1) / f ≥ the promise, exactly.
-                    let first_ns_x_hz =
-                        u64::from(t.ccr_sck) * (u64::from(psc) + 1) * 1_000_000_000;
+                    let first_ns_x_hz = u64::from(t.ccr_sck) * (u64::from(psc) + 1) * 1_000_000_000;
                     assert!(
                         first_ns_x_hz >= p.half_period_ns() * u64::from(clocks.timer_hz),
                         "{clocks:?} N {n}: {} ticks",
