@@ -139,14 +139,10 @@ pub fn long_plan(n: usize) -> bridge_logic::powerstep::Plan {
     }
 }
 
-/// The chain driver's two halves on the target's SPI1, TIM7 and chain pins,
-/// with their `'static` buffers, as the app takes them.
-pub fn chain(
-    mut t: Target,
-) -> (
-    firmware::drivers::chain_spi::ChainPort,
-    firmware::drivers::chain_spi::ChainDma,
-) {
+/// The chain's one driver on the target's SPI1, TIM7 and chain pins, with
+/// its `'static` buffers, as the app takes it (the app then puts it in
+/// `platform`'s cell; the tests use it directly).
+pub fn chain(mut t: Target) -> firmware::drivers::chain_spi::ChainSpi {
     use firmware::drivers::chain_spi::{chain_spi, ChainBuffers};
     let p = t.pins;
     let Some(bufs) = cortex_m::singleton!(: ChainBuffers = ChainBuffers::new()) else {
