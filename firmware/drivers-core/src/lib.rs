@@ -7,6 +7,8 @@
 //! * [`chain_spi`] — the powerSTEP01 chain: one driver owns SPI1, DMA2
 //!   streams 0/3, TIM7 and CS, and clocks both the blocking windows and the
 //!   batches of windows by DMA (CS gaps timed by TIM7).
+//! * [`ioext_spi`] — the I/O extension's port: SPI2 + DMA1 (the SPI
+//!   engine) and TIM1 + DMA2 writing GPIOB (the bit engine), CS on GPIOB.
 //! * [`dma`] — DMA1/DMA2 streams for both DMA drivers: the stream flags
 //!   wherever they sit in LISR/HISR/LIFCR/HIFCR, the one rule for which
 //!   flags are errors (FIFO errors included), the stream set-up.
@@ -35,6 +37,7 @@ pub mod chain_spi;
 pub mod dma;
 pub mod flash;
 pub mod i2c_slave;
+pub mod ioext_spi;
 pub mod iwdg;
 pub mod rs485;
 pub mod spi;

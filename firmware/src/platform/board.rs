@@ -21,7 +21,7 @@ use crate::board::{
 };
 use crate::drivers::chain_spi::{self, ChainBuffers, ChainCell};
 use crate::drivers::flash::StoreFlash;
-use crate::drivers::ioext_spi::{IoExtBuffers, IoExtPort};
+use crate::drivers::ioext_spi::{self, IoExtBuffers, IoExtPort};
 
 pub use crate::drivers::analog::Analog;
 pub use crate::drivers::i2c_slave::I2cSlaveDriver;
@@ -195,7 +195,7 @@ pub fn ioext_driver(
     bufs: &'static mut IoExtBuffers,
     rcc: &mut Rcc,
 ) -> IoExtDriver {
-    IoExtPort::new(spi, tim, dma1, dma2, pins, cs, bufs, rcc)
+    ioext_spi::ioext_port(spi, tim, dma1, dma2, pins, cs, bufs, rcc)
 }
 
 /// The settings store's flash: sectors 10 and 11.

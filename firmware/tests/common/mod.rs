@@ -161,12 +161,12 @@ pub fn chain(mut t: Target) -> firmware::drivers::chain_spi::ChainSpi {
 /// The I/O extension's board driver on the target's SPI2, TIM1, DMA1, DMA2
 /// and extension pins, with its `'static` buffers, as the app takes it.
 pub fn ioext_port(mut t: Target) -> firmware::drivers::ioext_spi::IoExtPort {
-    use firmware::drivers::ioext_spi::{IoExtBuffers, IoExtPort};
+    use firmware::drivers::ioext_spi::{ioext_port, IoExtBuffers};
     let p = t.pins;
     let Some(bufs) = cortex_m::singleton!(: IoExtBuffers = IoExtBuffers::new()) else {
         defmt::panic!("buffers taken twice");
     };
-    IoExtPort::new(
+    ioext_port(
         t.spi2,
         t.tim1,
         t.dma1,
