@@ -303,13 +303,12 @@ fn clear_flags(hw: &mut impl ChainHw) {
     dma::clear_with(hw, ChainReg::Dma, WORDS);
 }
 
-/// A DMA error of either stream in `lisr` (DMA2_LISR), under the one rule
+/// The DMA2_LISR bits that are errors of either stream, under the one rule
 /// of [`crate::dma`]: the receive stream's FEIF counts, the transmit
 /// stream's does not.
-fn dma_error(lisr: u32) -> bool {
-    Flags::of(lisr, RX_STREAM).intersects(RX.role.errors())
-        || Flags::of(lisr, TX_STREAM).intersects(TX.role.errors())
-}
+const ERRORS: u32 = RX.role.errors().at(RX_STREAM) | TX.role.errors().at(TX_STREAM);
+/// The transmit stream's error bits (read at the deadline).
+const TX_ERRORS: u32 = TX.role.errors().at(TX_STREAM);
 
 /// The clocks the driver works from.
 #[derive(Clone, Copy, Debug)]
@@ -500,7 +499,8 @@ impl<H: ChainHw + ChainMemory> ChainSpi<H> {
         if !dma::wait_disabled(
             &mut self.hw,
             ChainReg::Dma,
-            &[RX_STREAM, TX_STREAM],
+            RX_STREAM,
+            TX_STREAM,
             SHORT_POLLS,
         ) {
             self.stats.stuck = self.stats.stuck.saturating_add(1);
@@ -531,8 +531,8 @@ impl<H: ChainHw + ChainMemory> ChainSpi<H> {
                 if now_us < self.deadline_us {
                     return BatchState::Running;
                 }
-                let tx = dma::read(&mut self.hw, ChainReg::Dma, TX_STREAM);
-                let why = if tx.intersects(TX.role.errors()) {
+                let lisr = self.hw.read(ChainReg::Dma(DmaReg::Lisr));
+                let why = if lisr & TX_ERRORS != 0 {
                     self.stats.dma_errors = self.stats.dma_errors.saturating_add(1);
                     ChainSpiError::Dma
                 } else {
@@ -570,12 +570,12 @@ impl<H: ChainHw + ChainMemory> ChainSpi<H> {
             // Nothing of ours on the wire (a stray flag).
             return;
         }
-        if dma_error(lisr) {
+        if lisr & ERRORS != 0 {
             self.stats.dma_errors = self.stats.dma_errors.saturating_add(1);
             self.fail(ChainSpiError::Dma);
             return;
         }
-        if !Flags::of(lisr, RX_STREAM).contains(Flags::TCIF) {
+        if lisr & TCIF0 == 0 {
             return;
         }
         let sr = self.hw.read(ChainReg::Spi(SpiReg::Sr));

@@ -286,20 +286,19 @@ pub fn disable<R: Copy>(hw: &mut impl Regs<R>, dma: impl Fn(DmaReg) -> R + Copy,
     hw.modify(dma(DmaReg::Cr(stream)), |cr| cr & !DMA_CR_EN);
 }
 
-/// Wait (at most `polls` rounds) until every stream of `streams` reads
-/// EN = 0: a stream disabled by software finishes its current item, and
-/// its registers are writable only after that (RM0090 §10.3.17).
+/// Wait (at most `polls` rounds) until streams `a` and `b` read EN = 0: a
+/// stream disabled by software finishes its current item, and its
+/// registers are writable only after that (RM0090 §10.3.17).
 #[inline]
 pub fn wait_disabled<R: Copy>(
     hw: &mut impl Regs<R>,
     dma: impl Fn(DmaReg) -> R + Copy,
-    streams: &[u8],
+    a: u8,
+    b: u8,
     polls: u32,
 ) -> bool {
     (0..polls).any(|_| {
-        streams
-            .iter()
-            .all(|&s| hw.read(dma(DmaReg::Cr(s))) & DMA_CR_EN == 0)
+        hw.read(dma(DmaReg::Cr(a))) & DMA_CR_EN == 0 && hw.read(dma(DmaReg::Cr(b))) & DMA_CR_EN == 0
     })
 }
 

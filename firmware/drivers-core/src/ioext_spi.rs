@@ -537,8 +537,8 @@ impl<H: IoExtHw> IoExtPort<H> {
         let dma = s.controller.reg();
         // A stream disabled by a stop finishes its item first; its
         // registers (and buffer) are free only once EN reads 0.
-        let streams = [s.input.number, s.output.number];
-        if !dma::wait_disabled(&mut self.hw, dma, &streams, END_POLLS) {
+        let (input, output) = (s.input.number, s.output.number);
+        if !dma::wait_disabled(&mut self.hw, dma, input, output, END_POLLS) {
             return Started::Ended(Err(self.stop(IoExtError::EngineStuck)));
         }
         let items = self.load(setup, plan);
