@@ -143,6 +143,9 @@ pub const IOEXT_MOSI_PIN: u8 = 15;
 pub const IOEXT_MISO_PIN: u8 = 14;
 /// GPIOB pin number of [`IoExtSck`] (its alternate function is switched).
 pub const IOEXT_SCK_PIN: u8 = 13;
+/// GPIOB pin number of [`IoExtCs`] (the driver writes it through
+/// GPIOB_BSRR).
+pub const IOEXT_CS_PIN: u8 = 11;
 
 // ---------------------------------------------------------------------------
 // Pins reserved for later issues: declared, not configured

@@ -7,10 +7,10 @@
 //! | task | runs on | priority | owns | shares |
 //! |---|---|---|---|---|
 //! | `init` | reset | – | reset handoff, RCC, SysTick, IWDG (long window, short as its last step), GPIO; starts everything below | – |
-//! | `chain_window_end` | DMA2_STREAM0 | 5 | – | `chain` (SPI1, DMA2 streams 0/3, TIM7, CS) |
-//! | `chain_gap_end` | TIM7 | 5 | – | `chain` |
+//! | `chain_window_end` | DMA2_STREAM0 | 5 | – | the chain driver (SPI1, DMA2 streams 0/3, TIM7, CS: one value in `platform`'s cell, `platform::with_chain`) |
+//! | `chain_gap_end` | TIM7 | 5 | – | the chain driver |
 //! | `modbus_uart` | USART2 | 4 | – | `rs485` (USART2, DE), `modbus` |
-//! | `control_tick` | TIM2, 1 kHz | 3 | `tick` (TIM2), LED, STBY | `bridge` (its chain bus: SPI1 + CS, blocking), `chain`, `watchdog` (IWDG) |
+//! | `control_tick` | TIM2, 1 kHz | 3 | `tick` (TIM2), LED, STBY | `bridge` (its chain bus: a handle on the chain driver, for the blocking windows), the chain driver (poll, start), `watchdog` (IWDG) |
 //! | `modbus_server` | async | 2 | – | `bridge`, `rs485`, `modbus`, `i2c` |
 //! | `ioext_run` | async | 2 | – | `ioext` (SPI2, TIM1, DMA1/2, PB11/13–15), `bridge` |
 //! | `ioext_spi_end`, `ioext_bit_end` | DMA1_STREAM3, DMA2_STREAM2 | 2 | – | `ioext`, `bridge` |
@@ -26,8 +26,12 @@
 //!   Highest priority: the windows are the motion's timing and must not
 //!   wait behind the Modbus UART or a bridge lock; they can delay the UART
 //!   task by one of these short handlers (< 1 µs), nothing at the Modbus
-//!   line's scale (t1.5 ≥ 750 µs). The control tick's `chain` locks (start,
-//!   hand-over: ~140 and ~70 instructions) mask both for that long.
+//!   line's scale (t1.5 ≥ 750 µs). The chain driver is one value, SPI1's
+//!   only owner, in a critical-section cell (`platform::with_chain`):
+//!   these handlers, the control tick's start and hand-over (~140 and ~70
+//!   instructions) and the bridge's handle (a blocking window, ≤ 27 µs:
+//!   chain detection in `init`, the recovery windows after a bus error)
+//!   each mask every interrupt for that long.
 //! * `modbus_uart` stamps each received byte with the monotonic's µs and
 //!   hands it to the Modbus RTU server; the response leaves by TXE/TC
 //!   interrupts with DE high. Above everything but the chain's interrupts:
@@ -40,7 +44,7 @@
 //!   change waits up to 5 LSI cycles, 0.3 ms: at the first tick after a
 //!   save only). Then `Bridge::tick_pipelined` — one chain batch for every
 //!   axis, by DMA: the batch started by the previous tick is collected
-//!   (`ChainDma::poll`, its rows copied out) and ended (its replies
+//!   (`ChainSpi::poll`, its rows copied out) and ended (its replies
 //!   absorbed), then this tick is planned and its batch started; the bytes
 //!   shift while the CPU does other work. Batch k's replies are absorbed at
 //!   tick k + 1's start, before batch k + 1 is planned: the blocking
@@ -116,6 +120,7 @@ mod app {
     use defmt::{debug, error, info, warn};
     use firmware::board;
     use firmware::drivers::chain_spi::ChainBuffers;
+    use firmware::drivers::chain_spi::ChainSpiError;
     use firmware::drivers::clock::{self, Mono};
     use firmware::drivers::i2c_slave::LockedTarget;
     use firmware::drivers::ioext_spi::{IoExtBuffers, IoExtError, Started};
@@ -123,8 +128,8 @@ mod app {
     use firmware::drivers::rs485::{Rs485, Rx};
     use firmware::drivers::usb::Link;
     use firmware::platform::{
-        self, Analog, ChainDma, ChainDriver, I2cSlaveDriver, IoExtDriver, SettingsFlash, Stopwatch,
-        TickTimer, Usb, Watchdog,
+        self, Analog, ChainLink, I2cSlaveDriver, IoExtDriver, SettingsFlash, Stopwatch, TickTimer,
+        Usb, Watchdog,
     };
     use rtic::Mutex;
     use rtic_monotonics::Timebase;
@@ -147,12 +152,11 @@ mod app {
 
     #[shared]
     struct Shared {
-        /// The bridge: chain (its blocking windows), axes, PoStep60 models;
-        /// bus tasks hand it bytes.
-        bridge: Bridge<ChainDriver>,
-        /// The chain's batches by DMA: started and collected by the control
-        /// tick, run by the DMA and TIM7 tasks (ceiling 5).
-        chain: ChainDma,
+        /// The bridge: chain (a handle on the one chain driver, for its
+        /// blocking windows), axes, PoStep60 models; bus tasks hand it
+        /// bytes. The chain driver itself (the control tick's batches, run
+        /// by the DMA and TIM7 tasks) is in `platform`'s cell.
+        bridge: Bridge<ChainLink>,
         /// USART2 + DE: the RS-485 line (Modbus UART task and server task).
         rs485: Rs485,
         /// Modbus RTU framing and function codes (same two tasks).
@@ -253,7 +257,7 @@ mod app {
             dp.GPIOB.split(&mut rcc),
             dp.GPIOC.split(&mut rcc),
         );
-        let (bus, chain) = platform::chain_driver(
+        let bus = platform::chain_driver(
             dp.SPI1,
             (pins.chain_sck, pins.chain_miso, pins.chain_mosi),
             pins.chain_cs,
@@ -369,7 +373,6 @@ mod app {
         (
             Shared {
                 bridge,
-                chain,
                 rs485,
                 modbus: RtuServer::new(timing),
                 i2c,
@@ -410,7 +413,7 @@ mod app {
     }
 
     /// The boot log line of the Modbus line (the e2e test waits for it).
-    fn log_modbus(rs485: &Rs485, bridge: &Bridge<ChainDriver>, timing: Timing) {
+    fn log_modbus(rs485: &Rs485, bridge: &Bridge<ChainLink>, timing: Timing) {
         let serial = bridge.serial();
         if rs485.is_configured() {
             info!(
@@ -444,7 +447,7 @@ mod app {
     #[task(
         binds = TIM2,
         priority = 3,
-        shared = [bridge, chain, watchdog],
+        shared = [bridge, watchdog],
         local = [
             tick, clock, rate, led, stby, io_actions, io_pending,
             rx: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS],
@@ -474,7 +477,7 @@ mod app {
         // the DMA buffer; past its deadline it is stopped as a timeout).
         let now_us = clock::now_us();
         let rx = cx.local.rx;
-        let previous = cx.shared.chain.lock(|c| c.poll(now_us, rx));
+        let previous = platform::with_chain(|c| c.poll(now_us, rx)).unwrap_or(BatchState::Idle);
         if let BatchState::Done(result) = &previous {
             if let (Err(e), false) = (result, *cx.local.chain_failing) {
                 warn!("chain: batch failed ({})", e);
@@ -483,10 +486,11 @@ mod app {
         }
         // End it, plan this tick, start its batch (Bridge::tick_pipelined);
         // a batch still on the bus skips the tick as an overrun.
-        let chain = &mut cx.shared.chain;
         let (on, dead, io) = cx.shared.bridge.lock(|b| {
-            b.tick_pipelined(now, previous, |plan, port| {
-                chain.lock(|c| c.start(plan, port, now_us))
+            // The bridge's handle asks the one driver to start the batch.
+            b.tick_pipelined(now, previous, |plan, link| {
+                link.with(|c| c.start(plan, now_us))
+                    .unwrap_or(Err(ChainSpiError::Busy))
             });
             (b.led_on(now), b.chain_dead(), b.take_io_action())
         });
@@ -519,16 +523,16 @@ mod app {
     /// A chain window's bytes are in (DMA2 stream 0, SPI1_RX, transfer
     /// complete) or a stream failed: CS up, next window armed and its gap
     /// started, or the batch over (`drivers::chain_spi`).
-    #[task(binds = DMA2_STREAM0, priority = 5, shared = [chain])]
-    fn chain_window_end(mut cx: chain_window_end::Context) {
-        cx.shared.chain.lock(|c| c.on_dma());
+    #[task(binds = DMA2_STREAM0, priority = 5)]
+    fn chain_window_end(_: chain_window_end::Context) {
+        platform::with_chain(|c| c.on_dma());
     }
 
     /// TIM7's one pulse: a chain window's CS-high gap is over (CS down,
     /// set-up time started) or its set-up time is (bytes out).
-    #[task(binds = TIM7, priority = 5, shared = [chain])]
-    fn chain_gap_end(mut cx: chain_gap_end::Context) {
-        cx.shared.chain.lock(|c| c.on_timer());
+    #[task(binds = TIM7, priority = 5)]
+    fn chain_gap_end(_: chain_gap_end::Context) {
+        platform::with_chain(|c| c.on_timer());
     }
 
     /// The I/O extension's actions to `ioext_run`, oldest first; one that
@@ -602,7 +606,7 @@ mod app {
 
     /// The end of a transfer, to the bridge.
     fn report_io(
-        bridge: &mut impl Mutex<T = Bridge<ChainDriver>>,
+        bridge: &mut impl Mutex<T = Bridge<ChainLink>>,
         result: Result<WireBits, IoExtError>,
     ) {
         let taken = bridge.lock(|b| match &result {
@@ -697,7 +701,7 @@ mod app {
     /// Reprogram the I2C own addresses if the bridge's address base changed
     /// since the last call (through either bus).
     fn apply_address_change(
-        bridge: &mut impl Mutex<T = Bridge<ChainDriver>>,
+        bridge: &mut impl Mutex<T = Bridge<ChainLink>>,
         i2c: &mut I2cSlaveDriver,
     ) {
         if let Some((p, s)) = bridge.lock(|b| b.take_address_change().then(|| b.i2c_addresses())) {

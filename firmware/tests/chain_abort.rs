@@ -1,9 +1,10 @@
-//! The chain's DMA driver (`drivers::chain_spi`, the board's code) under
-//! QEMU, which models SPI1's registers but has no DMA controller and no
-//! TIM7: a batch starts and, left alone, never ends — the case its deadline
-//! handles. Checked here: SPI1 set up in mode 3, MSB first, 8-bit master;
-//! blocking windows; a batch past its deadline is stopped and reported as a
-//! timeout, with the DMA requests closed and the blocking path free again;
+//! The chain's one driver (`drivers::chain_spi`, the board's code: blocking
+//! windows and DMA batches) under QEMU, which models SPI1's registers but
+//! has no DMA controller and no TIM7: a batch starts and, left alone, never
+//! ends — the case its deadline handles. Checked here: SPI1 set up in mode
+//! 3, MSB first, 8-bit master; blocking windows; a batch past its deadline
+//! is stopped and reported as a timeout, with the DMA requests closed and
+//! blocking windows free again;
 //! while a batch runs a second start and a blocking window are refused;
 //! the per-window phases (gap, set-up, shift) walked through by handing the
 //! driver the events the board's TIM7 and DMA2 would raise: TXDMAEN opens
@@ -22,12 +23,13 @@ mod common;
 
 #[cfg(target_os = "none")]
 mod support {
-    use firmware::drivers::chain_spi::{ChainDma, ChainPort};
+    use firmware::drivers::chain_spi::ChainSpi;
     use stm32f4xx_hal::pac;
 
     pub struct State {
-        pub port: ChainPort,
-        pub dma: ChainDma,
+        /// The one driver: `window` for the blocking windows, `start` /
+        /// `poll` and the events for the batches.
+        pub dma: ChainSpi,
         pub pclk2_hz: u32,
     }
 
@@ -50,7 +52,7 @@ mod support {
 #[defmt_test::tests]
 mod tests {
     use bridge_logic::bridge::BatchState;
-    use bridge_logic::powerstep::chain::{ChainBus, Frames, Plan, MAX_DEVICES, MAX_WINDOWS};
+    use bridge_logic::powerstep::chain::{Frames, Plan, MAX_DEVICES, MAX_WINDOWS};
     use firmware::drivers::chain_spi::{ChainSpiError, FEIF0, SCK_MAX_HZ, TCIF0, TEIF0};
     use firmware::drivers::clock;
 
@@ -63,12 +65,8 @@ mod tests {
     fn init() -> State {
         let t = common::setup();
         let pclk2_hz = t.rcc.clocks.pclk2().raw();
-        let (port, dma) = common::chain(t);
-        State {
-            port,
-            dma,
-            pclk2_hz,
-        }
+        let dma = common::chain(t);
+        State { dma, pclk2_hz }
     }
 
     #[test]
@@ -84,9 +82,9 @@ mod tests {
             "software NSS"
         );
         let div = 2u32 << cr1.br().bits();
-        defmt::assert_eq!(s.pclk2_hz / div, s.port.sck_hz());
-        defmt::assert!(s.port.sck_hz() <= SCK_MAX_HZ);
-        defmt::assert!(s.port.sck_hz() * 2 > SCK_MAX_HZ, "the fastest rate allowed");
+        defmt::assert_eq!(s.pclk2_hz / div, s.dma.sck_hz());
+        defmt::assert!(s.dma.sck_hz() <= SCK_MAX_HZ);
+        defmt::assert!(s.dma.sck_hz() * 2 > SCK_MAX_HZ, "the fastest rate allowed");
         defmt::assert_eq!(dma_requests(), (false, false));
     }
 
@@ -94,7 +92,7 @@ mod tests {
     fn blocking_windows_go_through(s: &mut State) {
         for n in [1usize, 4, 8, 16] {
             let (tx, mut rx) = ([0xA5u8; 16], [0x5Au8; 16]);
-            defmt::assert!(s.port.window(&tx[..n], &mut rx[..n]).is_ok());
+            defmt::assert!(s.dma.window(&tx[..n], &mut rx[..n]).is_ok());
             // QEMU's SPI1 has no slave: every byte reads 0.
             defmt::assert!(rx[..n].iter().all(|&b| b == 0));
         }
@@ -105,18 +103,15 @@ mod tests {
         let plan = common::streaming_plan(8);
         defmt::assert_eq!(plan.windows(), 5);
         let now = clock::now_us();
-        defmt::assert!(s.dma.start(&plan, &mut s.port, now).is_ok());
+        defmt::assert!(s.dma.start(&plan, now).is_ok());
         defmt::assert!(s.dma.is_running());
         defmt::assert_eq!(dma_requests(), (false, true), "RX requests for the batch");
         let mut rx = EMPTY;
         defmt::assert!(matches!(s.dma.poll(now, &mut rx), BatchState::Running));
         // Refused while it runs: a second batch, a blocking window.
-        defmt::assert_eq!(
-            s.dma.start(&plan, &mut s.port, now),
-            Err(ChainSpiError::Busy)
-        );
+        defmt::assert_eq!(s.dma.start(&plan, now), Err(ChainSpiError::Busy));
         let (tx, mut one) = ([0u8; 8], [0u8; 8]);
-        defmt::assert_eq!(s.port.window(&tx, &mut one), Err(ChainSpiError::Busy));
+        defmt::assert_eq!(s.dma.window(&tx, &mut one), Err(ChainSpiError::Busy));
         // 5 windows of 8 bytes: nominal ~150 µs at 4 MHz; the deadline is
         // twice that + 100 µs.
         let nominal = s.dma.nominal_us();
@@ -136,8 +131,8 @@ mod tests {
         defmt::assert_eq!(s.dma.stats().timeouts, 1);
         defmt::assert!(matches!(s.dma.poll(now, &mut rx), BatchState::Idle));
         // The blocking path is free again, and so is the next batch.
-        defmt::assert!(s.port.window(&tx, &mut one).is_ok());
-        defmt::assert!(s.dma.start(&plan, &mut s.port, now).is_ok());
+        defmt::assert!(s.dma.window(&tx, &mut one).is_ok());
+        defmt::assert!(s.dma.start(&plan, now).is_ok());
         let _ = s.dma.poll(u64::MAX, &mut rx);
         defmt::assert!(!s.dma.is_running());
     }
@@ -149,7 +144,7 @@ mod tests {
         defmt::assert_eq!(windows, 12);
         let before = s.dma.stats();
         let now = clock::now_us();
-        defmt::assert!(s.dma.start(&plan, &mut s.port, now).is_ok());
+        defmt::assert!(s.dma.start(&plan, now).is_ok());
         let mut rx = [[0xEE; MAX_DEVICES]; MAX_WINDOWS];
         for w in 0..windows {
             // Gap: CS high, nothing may move.
@@ -196,7 +191,7 @@ mod tests {
         for flag in [TEIF0, FEIF0] {
             let before = s.dma.stats().dma_errors;
             let now = clock::now_us();
-            defmt::assert!(s.dma.start(&plan, &mut s.port, now).is_ok());
+            defmt::assert!(s.dma.start(&plan, now).is_ok());
             s.dma.on_timer();
             s.dma.on_timer();
             s.dma.dma_event(TCIF0);
@@ -212,13 +207,13 @@ mod tests {
             defmt::assert_eq!(s.dma.stats().dma_errors, before + 1);
         }
         let (tx, mut one) = ([0u8; 4], [0u8; 4]);
-        defmt::assert!(s.port.window(&tx, &mut one).is_ok());
+        defmt::assert!(s.dma.window(&tx, &mut one).is_ok());
     }
 
     #[test]
     fn a_plan_without_windows_is_refused(s: &mut State) {
         defmt::assert_eq!(
-            s.dma.start(&Plan::default(), &mut s.port, 0),
+            s.dma.start(&Plan::default(), 0),
             Err(ChainSpiError::BadPlan)
         );
         defmt::assert!(!s.dma.is_running());

@@ -49,7 +49,7 @@ fn main() -> ! {
     use bridge_logic::powerstep::chain::{Frames, MAX_DEVICES, MAX_WINDOWS};
     use firmware::drivers::chain_spi::TCIF0;
 
-    let (mut port, mut dma) = common::chain(common::setup());
+    let mut dma = common::chain(common::setup());
     // No SysTick interrupt inside the counted regions (the driver gets its
     // time as an argument).
     #[allow(unsafe_code)]
@@ -64,7 +64,7 @@ fn main() -> ! {
     let mut ok = 0u32;
     for _ in 0..N {
         armcost_mark_start();
-        let started = dma.start(&plan, &mut port, 0);
+        let started = dma.start(&plan, 0);
         armcost_mark_off();
         ok += u32::from(started.is_ok());
         for w in 0..windows {

@@ -1,9 +1,11 @@
-//! The firmware's chain driver (`drivers_core::chain_spi`: blocking windows
-//! and DMA batches, the code the board runs) against the RM0090 model of
-//! SPI1, DMA2 streams 0/3, TIM7 and CS (`host_tests::rm0090::chain_spi`)
-//! with simulated powerSTEP01s behind MISO: one test per rule (S1–S11),
-//! then the bridge's control ticks through driver and model into the chips,
-//! compared with the blocking tick on the bare simulator.
+//! The firmware's chain driver (`drivers_core::chain_spi`: the one owner of
+//! SPI1, blocking windows and DMA batches, the code the board runs) against
+//! the RM0090 model of SPI1, DMA2 streams 0/3, TIM7 and CS
+//! (`host_tests::rm0090::chain_spi`) with simulated powerSTEP01s behind
+//! MISO: one test per rule (S1–S11), then the bridge's control ticks
+//! through driver and model into the chips — the bridge's chain bus a
+//! handle on the same driver that runs the batches — compared with the
+//! blocking tick on the bare simulator.
 
 use bridge_logic::bridge::{BatchState, Bridge, SettingsSource};
 use bridge_logic::postep60::analog::AnalogSample;
@@ -11,10 +13,8 @@ use bridge_logic::postep60::{Board, Query, Request, Settings, Value};
 use bridge_logic::powerstep::chain::{Batch, ChainBus, Frames, Plan, MAX_DEVICES, MAX_WINDOWS};
 use bridge_logic::powerstep::commands::Command;
 use drivers_core::chain_spi::bits::*;
-use drivers_core::chain_spi::{
-    chain_spi, ChainClocks, ChainDma, ChainPort, ChainSpiError, RX_STREAM, TEIF0, TX_STREAM,
-};
-use host_tests::rm0090::chain_spi::{ChainHandle, PCLK2_HZ, SYSCLK_HZ, TIMCLK_HZ};
+use drivers_core::chain_spi::{ChainClocks, ChainSpi, ChainSpiError, RX_STREAM, TEIF0, TX_STREAM};
+use host_tests::rm0090::chain_spi::{ChainHandle, SharedChain, PCLK2_HZ, SYSCLK_HZ, TIMCLK_HZ};
 use host_tests::sim_bridge::{all_settled, chip, new_bridge, TICK_US};
 use stepbridge_sim::SimChain;
 
@@ -28,11 +28,10 @@ fn clocks() -> ChainClocks {
     }
 }
 
-/// Driver halves on a model with `n` simulated chips.
-fn rig(n: usize) -> (ChainPort<ChainHandle>, ChainDma<ChainHandle>, ChainHandle) {
+/// The driver on a model with `n` simulated chips.
+fn rig(n: usize) -> (ChainSpi<ChainHandle>, ChainHandle) {
     let hw = ChainHandle::new(SimChain::new(n));
-    let (port, dma) = chain_spi(hw.clone(), hw.clone(), clocks());
-    (port, dma, hw)
+    (ChainSpi::new(hw.clone(), clocks()), hw)
 }
 
 fn now_us(hw: &ChainHandle) -> u64 {
@@ -42,7 +41,7 @@ fn now_us(hw: &ChainHandle) -> u64 {
 /// Let the model run to `until_us`, serving TIM7 and DMA2_STREAM0 (TIM7
 /// first: the lower IRQ number, both at one priority) `latency_ns` after
 /// their line rises.
-fn run_until(hw: &ChainHandle, dma: &mut ChainDma<ChainHandle>, until_us: u64, latency_ns: u64) {
+fn run_until(hw: &ChainHandle, dma: &mut ChainSpi<ChainHandle>, until_us: u64, latency_ns: u64) {
     let until = until_us * 1_000_000;
     let mut served = 0;
     loop {
@@ -91,14 +90,13 @@ fn status_plan(n: usize) -> Plan {
 
 /// Start `plan`, run the model 1 ms, collect it.
 fn batch(
-    port: &mut ChainPort<ChainHandle>,
-    dma: &mut ChainDma<ChainHandle>,
+    dma: &mut ChainSpi<ChainHandle>,
     hw: &ChainHandle,
     plan: &Plan,
     latency_ns: u64,
 ) -> Result<Frames, ChainSpiError> {
     let t0 = now_us(hw);
-    dma.start(plan, port, t0)?;
+    dma.start(plan, t0)?;
     run_until(hw, dma, t0 + 1000, latency_ns);
     let mut rx = EMPTY;
     match dma.poll(now_us(hw), &mut rx) {
@@ -112,7 +110,7 @@ fn batch(
 
 #[test]
 fn s1_s2_spi1_is_an_enabled_mode_3_msb_first_8_bit_master_at_2_625_mhz() {
-    let (port, _dma, hw) = rig(4);
+    let (port, hw) = rig(4);
     let cr1 = hw.model().spi_cr1();
     let want = SPI_CR1_CPOL | SPI_CR1_CPHA | SPI_CR1_MSTR | SPI_CR1_SSM | SPI_CR1_SSI | SPI_CR1_SPE;
     assert_eq!(cr1 & want, want);
@@ -126,7 +124,7 @@ fn s1_s2_spi1_is_an_enabled_mode_3_msb_first_8_bit_master_at_2_625_mhz() {
 
 #[test]
 fn s3_s4_s5_a_blocking_window_returns_the_chains_bytes_and_raises_cs_after_bsy() {
-    let (mut port, _dma, hw) = rig(4);
+    let (mut port, hw) = rig(4);
     let tx = [0xD0, 0xD0, 0xD0, 0xD0];
     let mut rx = [0u8; 4];
     port.window(&tx, &mut rx).unwrap();
@@ -141,7 +139,7 @@ fn s3_s4_s5_a_blocking_window_returns_the_chains_bytes_and_raises_cs_after_bsy()
 
 #[test]
 fn s11_blocking_windows_keep_t_discs_and_t_setcs() {
-    let (mut port, _dma, hw) = rig(4);
+    let (mut port, hw) = rig(4);
     for _ in 0..3 {
         let mut rx = [0u8; 4];
         port.window(&[0; 4], &mut rx).unwrap();
@@ -159,9 +157,8 @@ fn s11_blocking_windows_keep_t_discs_and_t_setcs() {
 fn chain_detection_through_driver_and_model_finds_every_chip() {
     for n in [1, 4, 8] {
         let hw = ChainHandle::new(SimChain::new(n));
-        let (port, _dma) = chain_spi(hw.clone(), hw.clone(), clocks());
         let bridge = Bridge::new(
-            port,
+            ChainSpi::new(hw.clone(), clocks()),
             Board::REFERENCE,
             Settings::FACTORY,
             SettingsSource::Stored,
@@ -176,9 +173,9 @@ fn chain_detection_through_driver_and_model_finds_every_chip() {
 
 #[test]
 fn s6_s9_s10_s11_a_dma_batch_clocks_every_window_with_the_cs_timing_the_chips_need() {
-    let (mut port, mut dma, hw) = rig(4);
+    let (mut dma, hw) = rig(4);
     let plan = status_plan(4);
-    let rows = batch(&mut port, &mut dma, &hw, &plan, 0).unwrap();
+    let rows = batch(&mut dma, &hw, &plan, 0).unwrap();
     let m = hw.model();
     assert_eq!(m.windows.len(), plan.windows());
     for (w, win) in m.windows.iter().enumerate() {
@@ -202,7 +199,7 @@ fn s6_s9_s10_s11_a_dma_batch_clocks_every_window_with_the_cs_timing_the_chips_ne
 
 #[test]
 fn s8_the_streams_are_spi1_rx_and_tx_on_channel_3_at_spi1_dr() {
-    let (_port, _dma, hw) = rig(2);
+    let (_chain, hw) = rig(2);
     let m = hw.model();
     for (s, dir) in [(RX_STREAM, 0), (TX_STREAM, DMA_CR_DIR_M2P)] {
         let cr = m.stream_cr(s);
@@ -215,9 +212,9 @@ fn s8_the_streams_are_spi1_rx_and_tx_on_channel_3_at_spi1_dr() {
 #[test]
 fn s4_s10_a_batch_with_slow_interrupts_loses_no_byte_and_only_widens_the_gaps() {
     for latency in [500, 2_000] {
-        let (mut port, mut dma, hw) = rig(8);
+        let (mut dma, hw) = rig(8);
         let plan = status_plan(8);
-        let rows = batch(&mut port, &mut dma, &hw, &plan, latency).unwrap();
+        let rows = batch(&mut dma, &hw, &plan, latency).unwrap();
         let m = hw.model();
         assert!(!m.ovr());
         for (w, win) in m.windows.iter().enumerate() {
@@ -230,10 +227,10 @@ fn s4_s10_a_batch_with_slow_interrupts_loses_no_byte_and_only_widens_the_gaps() 
 
 #[test]
 fn s7_batch_after_batch_rearms_the_streams_only_while_disabled_and_flags_clear() {
-    let (mut port, mut dma, hw) = rig(4);
+    let (mut dma, hw) = rig(4);
     let plan = status_plan(4);
     for _ in 0..5 {
-        batch(&mut port, &mut dma, &hw, &plan, 0).unwrap();
+        batch(&mut dma, &hw, &plan, 0).unwrap();
     }
     assert_eq!(hw.model().windows.len(), 5 * plan.windows());
     clean(&hw); // S7 violations would be listed
@@ -243,23 +240,20 @@ fn s7_batch_after_batch_rearms_the_streams_only_while_disabled_and_flags_clear()
 
 #[test]
 fn s9_a_dma_error_ends_the_batch_as_a_dma_error_and_the_next_batch_works() {
-    let (mut port, mut dma, hw) = rig(4);
+    let (mut dma, hw) = rig(4);
     let plan = status_plan(4);
     hw.model_mut().fail_stream_next(RX_STREAM, TEIF0);
-    assert_eq!(
-        batch(&mut port, &mut dma, &hw, &plan, 0),
-        Err(ChainSpiError::Dma)
-    );
+    assert_eq!(batch(&mut dma, &hw, &plan, 0), Err(ChainSpiError::Dma));
     assert!(hw.model().cs_high());
-    assert!(batch(&mut port, &mut dma, &hw, &plan, 0).is_ok());
+    assert!(batch(&mut dma, &hw, &plan, 0).is_ok());
     clean(&hw);
 }
 
 #[test]
 fn a_batch_past_its_deadline_is_stopped_as_a_timeout_with_cs_high() {
-    let (mut port, mut dma, hw) = rig(4);
+    let (mut dma, hw) = rig(4);
     let plan = status_plan(4);
-    dma.start(&plan, &mut port, now_us(&hw)).unwrap();
+    dma.start(&plan, now_us(&hw)).unwrap();
     let t = now_us(&hw);
     run_until(&hw, &mut dma, t + 5, 0);
     hw.model_mut().frozen = true; // SCK stops mid-window
@@ -274,22 +268,19 @@ fn a_batch_past_its_deadline_is_stopped_as_a_timeout_with_cs_high() {
     assert!(!dma.is_running());
     let mut one = [0u8; 4];
     assert!(
-        port.window(&[0; 4], &mut one).is_ok(),
-        "the blocking half works again"
+        dma.window(&[0; 4], &mut one).is_ok(),
+        "blocking windows work again"
     );
 }
 
 #[test]
 fn a_blocking_window_is_refused_while_a_batch_runs() {
-    let (mut port, mut dma, hw) = rig(4);
+    let (mut dma, hw) = rig(4);
     let plan = status_plan(4);
-    dma.start(&plan, &mut port, now_us(&hw)).unwrap();
+    dma.start(&plan, now_us(&hw)).unwrap();
     let mut rx = [0u8; 4];
-    assert_eq!(port.window(&[0; 4], &mut rx), Err(ChainSpiError::Busy));
-    assert_eq!(
-        dma.start(&plan, &mut port, now_us(&hw)),
-        Err(ChainSpiError::Busy)
-    );
+    assert_eq!(dma.window(&[0; 4], &mut rx), Err(ChainSpiError::Busy));
+    assert_eq!(dma.start(&plan, now_us(&hw)), Err(ChainSpiError::Busy));
     let t = now_us(&hw);
     run_until(&hw, &mut dma, t + 1000, 0);
     let mut rows = EMPTY;
@@ -302,10 +293,11 @@ fn a_blocking_window_is_refused_while_a_batch_runs() {
 
 // ------------------------------------------- the bridge on the wire --
 
-/// A bridge whose chain is driver + model, ticked the firmware's way.
+/// A bridge whose chain is driver + model, ticked the firmware's way: the
+/// bridge's bus a handle on the one driver that also runs the batches.
 struct Wire {
-    bridge: Bridge<ChainPort<ChainHandle>>,
-    dma: ChainDma<ChainHandle>,
+    bridge: Bridge<SharedChain>,
+    chain: SharedChain,
     hw: ChainHandle,
     rx: Frames,
     now_ms: u64,
@@ -314,9 +306,9 @@ struct Wire {
 impl Wire {
     fn new(n: usize) -> Wire {
         let hw = ChainHandle::new(SimChain::new(n));
-        let (port, dma) = chain_spi(hw.clone(), hw.clone(), clocks());
+        let chain = SharedChain::new(ChainSpi::new(hw.clone(), clocks()));
         let mut bridge = Bridge::new(
-            port,
+            chain.clone(),
             Board::REFERENCE,
             Settings::FACTORY,
             SettingsSource::Stored,
@@ -329,7 +321,7 @@ impl Wire {
         });
         Wire {
             bridge,
-            dma,
+            chain,
             hw,
             rx: EMPTY,
             now_ms: 0,
@@ -342,14 +334,15 @@ impl Wire {
     fn tick(&mut self) {
         self.now_ms += 1;
         let now_us = self.now_ms * 1000;
-        run_until(&self.hw, &mut self.dma, now_us, 300);
-        let previous = self.dma.poll(now_us, &mut self.rx);
-        let dma = &mut self.dma;
+        let hw = &self.hw;
+        self.chain.with(|d| run_until(hw, d, now_us, 300));
+        let rx = &mut self.rx;
+        let previous = self.chain.with(|d| d.poll(now_us, rx));
         self.bridge
-            .tick_pipelined(self.now_ms, previous, |plan, port| {
-                dma.start(plan, port, now_us)
+            .tick_pipelined(self.now_ms, previous, |plan, link| {
+                link.with(|d| d.start(plan, now_us))
             });
-        run_until(&self.hw, &mut self.dma, now_us + 999, 300);
+        self.chain.with(|d| run_until(hw, d, now_us + 999, 300));
         self.hw.model_mut().chain.advance(u64::from(TICK_US) * 1000);
     }
 }
@@ -405,4 +398,29 @@ fn a_move_through_driver_and_model_lands_where_the_blocking_tick_lands() {
     assert_ne!(wire_pos, 0);
     assert_eq!(w.bridge.diag.chain_errors, 0);
     clean(&w.hw);
+}
+
+#[test]
+fn the_bridges_chain_bus_asks_the_driver_that_runs_the_batches() {
+    // One owner: a blocking window through the bridge's handle is refused
+    // while the same driver runs a batch, and goes through once it is over.
+    let hw = ChainHandle::new(SimChain::new(4));
+    let chain = SharedChain::new(ChainSpi::new(hw.clone(), clocks()));
+    let mut link = chain.clone();
+    let plan = status_plan(4);
+    chain.with(|d| d.start(&plan, now_us(&hw))).unwrap();
+    let mut rx = [0u8; 4];
+    assert_eq!(link.window(&[0; 4], &mut rx), Err(ChainSpiError::Busy));
+    let t = now_us(&hw);
+    chain.with(|d| run_until(&hw, d, t + 1000, 0));
+    let mut rows = EMPTY;
+    assert!(matches!(
+        chain.with(|d| d.poll(now_us(&hw), &mut rows)),
+        BatchState::Done(Ok(_))
+    ));
+    let before = hw.model().windows.len();
+    link.window(&[0xD0; 4], &mut rx).unwrap();
+    assert_eq!(hw.model().windows.len(), before + 1);
+    assert_eq!(hw.model().windows.last().unwrap().rx, rx);
+    clean(&hw);
 }

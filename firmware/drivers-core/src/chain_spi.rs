@@ -1,9 +1,10 @@
-//! The powerSTEP01 chain on SPI1 and the common CS line: a batch of CS
-//! windows clocked by DMA ([`ChainDma`]) for the control tick, and blocking
-//! windows ([`ChainPort`], the bridge's [`ChainBus`]) for chain detection at
-//! boot and the recovery windows after a bus error. Which bytes go into a
-//! window is the logic crate's job; this driver moves them and decides
-//! nothing else.
+//! The powerSTEP01 chain on SPI1 and the common CS line: one driver
+//! ([`ChainSpi`], the only owner of SPI1, DMA2 streams 0/3, TIM7 and CS)
+//! clocks a batch of CS windows by DMA for the control tick
+//! ([`ChainSpi::start`] / [`ChainSpi::poll`]) and the blocking windows
+//! ([`ChainSpi::window`], its [`ChainBus`]) for chain detection at boot and
+//! the recovery windows after a bus error. Which bytes go into a window is
+//! the logic crate's job; this driver moves them and decides nothing else.
 //!
 //! Every register access goes through a [`ChainHw`] — on the chip the
 //! firmware's PAC glue (`firmware::drivers::chain_spi`: SPI1, DMA2, TIM7,
@@ -21,7 +22,7 @@
 //! # A batch by DMA
 //!
 //! Up to [`MAX_WINDOWS`] windows of N ≤ [`MAX_DEVICES`] bytes, copied out
-//! of the bridge's plan by [`ChainDma::start`] into this driver's `'static`
+//! of the bridge's plan by [`ChainSpi::start`] into this driver's `'static`
 //! buffers. DMA2 stream 3 channel 3 (SPI1_TX) moves a window's N bytes out,
 //! stream 0 channel 3 (SPI1_RX) the N bytes that come back (RM0090 table
 //! 43; stream 2, SPI1_RX's other choice, is the I/O extension's). Every
@@ -37,7 +38,7 @@
 //!    streams for the next window and starts its gap — or, after the last
 //!    window, marks the batch done.
 //!
-//! The control tick collects the batch with [`ChainDma::poll`] at its next
+//! The control tick collects the batch with [`ChainSpi::poll`] at its next
 //! run. The streams are armed before TXDMAEN opens the TX request, and TX
 //! requests are closed again (TXDMAEN = 0) before the TX stream is enabled
 //! for the next window, so no byte can leave while CS is high. RXDMAEN stays
@@ -46,13 +47,15 @@
 //! # Errors (never a hang)
 //!
 //! * A transfer or direct-mode error of either stream, a FIFO error of the
-//!   receive stream (a byte lost), SPI1 overrun or mode fault:
-//!   [`ChainSpiError::Dma`] / [`ChainSpiError::Spi`]. The transmit stream's
-//!   FIFO-error flag is ignored: in direct mode, memory to peripheral, it
-//!   also rises when the stream is enabled with the request already active
-//!   (nothing is lost: the master's clock waits for its data).
+//!   receive stream, SPI1 overrun or mode fault: [`ChainSpiError::Dma`] /
+//!   [`ChainSpiError::Spi`]. The transmit stream's FIFO-error flag is
+//!   ignored: in direct mode, memory to peripheral, it also rises when the
+//!   stream is enabled with the request already active, and nothing is lost
+//!   (the master's clock waits for its data). Both are the one rule of
+//!   [`crate::dma`] ([`Role::Receive`], [`Role::TransmitWaited`]), which the
+//!   I/O extension's driver follows too.
 //! * A batch not over by its deadline (twice its nominal time + 100 µs,
-//!   from [`ChainDma::start`]): [`ChainDma::poll`] stops the streams and
+//!   from [`ChainSpi::start`]): [`ChainSpi::poll`] stops the streams and
 //!   TIM7, raises CS and reports [`ChainSpiError::Timeout`] (or `Dma` if the
 //!   transmit stream, whose errors raise no interrupt here, has an error).
 //! * SPI1 still busy after the last byte of a window (bounded status polls,
@@ -63,19 +66,21 @@
 //!
 //! # Blocking windows
 //!
-//! [`ChainPort::window`]: CS high for t_disCS (a DMA batch may have raised
+//! [`ChainSpi::window`]: CS high for t_disCS (a DMA batch may have raised
 //! it just before), CS low, t_setCS, the bytes polled through SPI1_DR, CS
 //! high, t_disCS — busy-waits of CPU cycles, at boot and after a bus error
-//! only. Refused ([`ChainSpiError::Busy`]) while a DMA batch runs.
+//! only. Refused ([`ChainSpiError::Busy`]) while a DMA batch runs: the
+//! driver's own phase says so, no flag shared with anything else.
 //!
-//! # Shared hardware
+//! # One owner
 //!
-//! SPI1 and the CS pin are shared by the two halves ([`ChainPort`] and
-//! [`ChainDma`], each with its own [`ChainHw`] handle): the blocking half
-//! refuses while [`ChainHw::batch_running`] says a batch owns them. DMA2
-//! streams 0 and 3 are this driver's; the I/O extension's driver uses
-//! streams 2 and 6 (the flag-clear register is write-1-to-clear, so each
-//! writes only its own bits).
+//! One [`ChainSpi`] value holds SPI1, DMA2 streams 0 and 3, TIM7 and CS; the
+//! bridge's [`ChainBus`] is a handle that asks it for each blocking window
+//! (the firmware keeps the driver in one critical-section cell that the
+//! bridge's handle, the control tick and the two interrupts reach; the
+//! host tests share it the same way). DMA2 streams 2 and 6 are the I/O
+//! extension's (the flag-clear register is write-1-to-clear, so each driver
+//! writes only its own bits, through [`crate::dma`]).
 //!
 //! # What is not verified
 //!
@@ -89,6 +94,8 @@
 use core::sync::atomic::{compiler_fence, Ordering};
 use powerstep01::chain::{BatchState, ChainBus, Frames, Plan, MAX_DEVICES, MAX_WINDOWS};
 
+use crate::dma::{self, DmaReg, Flags, Role, Size, Stream};
+use crate::spi::{self, SpiReg};
 use crate::Regs;
 
 /// The powerSTEP01 SPI limit is 5 MHz; stay at or below 4 MHz, the rate the
@@ -104,37 +111,48 @@ pub const RX_STREAM: u8 = 0;
 pub const TX_STREAM: u8 = 3;
 pub const SPI1_CHANNEL: u32 = 3;
 
-/// DMA2_LISR / LIFCR bits of streams 0 and 3 (RM0090 10.5.1).
-pub const FEIF0: u32 = 1 << 0;
-pub const DMEIF0: u32 = 1 << 2;
-pub const TEIF0: u32 = 1 << 3;
-pub const HTIF0: u32 = 1 << 4;
-pub const TCIF0: u32 = 1 << 5;
-pub const FEIF3: u32 = 1 << 22;
-pub const DMEIF3: u32 = 1 << 24;
-pub const TEIF3: u32 = 1 << 25;
-pub const HTIF3: u32 = 1 << 26;
-pub const TCIF3: u32 = 1 << 27;
-const ERRORS: u32 = FEIF0 | DMEIF0 | TEIF0 | DMEIF3 | TEIF3;
+/// The receive stream: bytes in, very high priority, interrupts at its end
+/// and on its errors.
+pub const RX: Stream = Stream {
+    number: RX_STREAM,
+    channel: SPI1_CHANNEL as u8,
+    role: Role::Receive,
+    size: Size::Byte,
+    priority: DMA_CR_PL_VERY_HIGH,
+    interrupts: DMA_CR_TCIE | DMA_CR_TEIE | DMA_CR_DMEIE,
+};
+/// The transmit stream: bytes out, high priority, no interrupt (its errors
+/// are read at the receive stream's interrupt and at the deadline).
+pub const TX: Stream = Stream {
+    number: TX_STREAM,
+    channel: SPI1_CHANNEL as u8,
+    role: Role::TransmitWaited,
+    size: Size::Byte,
+    priority: DMA_CR_PL_HIGH,
+    interrupts: 0,
+};
+
+/// DMA2_LISR / LIFCR bits of streams 0 and 3 (RM0090 10.5.1), from
+/// [`crate::dma::Flags`].
+pub const FEIF0: u32 = Flags::FEIF.at(RX_STREAM);
+pub const DMEIF0: u32 = Flags::DMEIF.at(RX_STREAM);
+pub const TEIF0: u32 = Flags::TEIF.at(RX_STREAM);
+pub const HTIF0: u32 = Flags::HTIF.at(RX_STREAM);
+pub const TCIF0: u32 = Flags::TCIF.at(RX_STREAM);
+pub const FEIF3: u32 = Flags::FEIF.at(TX_STREAM);
+pub const DMEIF3: u32 = Flags::DMEIF.at(TX_STREAM);
+pub const TEIF3: u32 = Flags::TEIF.at(TX_STREAM);
+pub const HTIF3: u32 = Flags::HTIF.at(TX_STREAM);
+pub const TCIF3: u32 = Flags::TCIF.at(TX_STREAM);
 /// Every flag of streams 0 and 3 (their LIFCR bits).
-pub const STREAM_FLAGS: u32 =
-    FEIF0 | DMEIF0 | TEIF0 | HTIF0 | TCIF0 | FEIF3 | DMEIF3 | TEIF3 | HTIF3 | TCIF3;
+pub const STREAM_FLAGS: u32 = Flags::ALL.at(RX_STREAM) | Flags::ALL.at(TX_STREAM);
 
 /// The registers the chain driver touches: SPI1, DMA2 (LISR/LIFCR and the
 /// stream registers of stream `n`), TIM7 (RM0090 §28.5, §10.5, §20.4).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum ChainReg {
-    SpiCr1,
-    SpiCr2,
-    SpiSr,
-    SpiDr,
-    DmaLisr,
-    DmaLifcr,
-    DmaCr(u8),
-    DmaNdtr(u8),
-    DmaPar(u8),
-    DmaM0ar(u8),
-    DmaFcr(u8),
+    Spi(SpiReg),
+    Dma(DmaReg),
     TimCr1,
     TimDier,
     TimSr,
@@ -144,42 +162,11 @@ pub enum ChainReg {
     TimArr,
 }
 
-/// Register bits (RM0090 §28.5.1–§28.5.4, §10.5.5, §10.5.10, §20.4).
+/// Register bits (RM0090 §28.5.1–§28.5.4, §10.5.5, §10.5.10, §20.4): SPI
+/// and DMA from [`crate::spi`] and [`crate::dma`], TIM7's here.
 pub mod bits {
-    pub const SPI_CR1_CPHA: u32 = 1 << 0;
-    pub const SPI_CR1_CPOL: u32 = 1 << 1;
-    pub const SPI_CR1_MSTR: u32 = 1 << 2;
-    pub const SPI_CR1_BR_SHIFT: u32 = 3;
-    pub const SPI_CR1_BR_MASK: u32 = 0b111 << SPI_CR1_BR_SHIFT;
-    pub const SPI_CR1_SPE: u32 = 1 << 6;
-    pub const SPI_CR1_LSBFIRST: u32 = 1 << 7;
-    pub const SPI_CR1_SSI: u32 = 1 << 8;
-    pub const SPI_CR1_SSM: u32 = 1 << 9;
-    pub const SPI_CR1_DFF: u32 = 1 << 11;
-    pub const SPI_CR2_RXDMAEN: u32 = 1 << 0;
-    pub const SPI_CR2_TXDMAEN: u32 = 1 << 1;
-    pub const SPI_SR_RXNE: u32 = 1 << 0;
-    pub const SPI_SR_TXE: u32 = 1 << 1;
-    pub const SPI_SR_MODF: u32 = 1 << 5;
-    pub const SPI_SR_OVR: u32 = 1 << 6;
-    pub const SPI_SR_BSY: u32 = 1 << 7;
-    pub const DMA_CR_EN: u32 = 1 << 0;
-    pub const DMA_CR_DMEIE: u32 = 1 << 1;
-    pub const DMA_CR_TEIE: u32 = 1 << 2;
-    pub const DMA_CR_HTIE: u32 = 1 << 3;
-    pub const DMA_CR_TCIE: u32 = 1 << 4;
-    pub const DMA_CR_DIR_SHIFT: u32 = 6;
-    pub const DMA_CR_DIR_MASK: u32 = 0b11 << DMA_CR_DIR_SHIFT;
-    pub const DMA_CR_DIR_M2P: u32 = 0b01 << DMA_CR_DIR_SHIFT;
-    pub const DMA_CR_MINC: u32 = 1 << 10;
-    pub const DMA_CR_PL_SHIFT: u32 = 16;
-    pub const DMA_CR_PL_HIGH: u32 = 0b10 << DMA_CR_PL_SHIFT;
-    pub const DMA_CR_PL_VERY_HIGH: u32 = 0b11 << DMA_CR_PL_SHIFT;
-    pub const DMA_CR_CHSEL_SHIFT: u32 = 25;
-    pub const DMA_CR_CHSEL_MASK: u32 = 0b111 << DMA_CR_CHSEL_SHIFT;
-    /// SxFCR reset value: direct mode, FIFO threshold 1/2.
-    pub const DMA_FCR_RESET: u32 = 0x21;
-    pub const DMA_FCR_FEIE: u32 = 1 << 7;
+    pub use crate::dma::bits::*;
+    pub use crate::spi::bits::*;
     pub const TIM_CR1_CEN: u32 = 1 << 0;
     pub const TIM_CR1_URS: u32 = 1 << 2;
     pub const TIM_CR1_OPM: u32 = 1 << 3;
@@ -199,9 +186,6 @@ pub trait ChainHw: Regs<ChainReg> {
     /// Clear the pending bits of the batch's two interrupts (TIM7,
     /// DMA2_STREAM0) after a stop.
     fn unpend_interrupts(&mut self);
-    /// A DMA batch owns SPI1 and CS (shared by both halves' handles).
-    fn batch_running(&self) -> bool;
-    fn set_batch_running(&mut self, running: bool);
 }
 
 /// The batch's memory: the rows the streams read and write.
@@ -296,204 +280,46 @@ pub fn cycles(ns: u32, hz: u32) -> u32 {
 /// SPI1 up (mode 3, MSB first, 8-bit, master, software NSS held high,
 /// CR1.BR = `br`), then enabled.
 fn configure_spi(hw: &mut impl ChainHw, br: u32) {
-    hw.write(
-        ChainReg::SpiCr1,
-        SPI_CR1_CPHA
-            | SPI_CR1_CPOL
-            | SPI_CR1_MSTR
-            | ((br << SPI_CR1_BR_SHIFT) & SPI_CR1_BR_MASK)
-            | SPI_CR1_SSM
-            | SPI_CR1_SSI,
-    );
-    hw.write(ChainReg::SpiCr2, 0);
-    hw.modify(ChainReg::SpiCr1, |cr1| cr1 | SPI_CR1_SPE);
+    hw.write(ChainReg::Spi(SpiReg::Cr1), spi::master_cr1(br, true, true));
+    hw.write(ChainReg::Spi(SpiReg::Cr2), 0);
+    hw.modify(ChainReg::Spi(SpiReg::Cr1), |cr1| cr1 | SPI_CR1_SPE);
 }
 
-/// Read DR, then SR: drops a stale byte and clears an overrun (RM0090
-/// §28.4.8: OVR is cleared by a DR read followed by an SR read).
+/// Read DR, then SR: drops a stale byte and clears an overrun.
 fn drain_spi(hw: &mut impl ChainHw) {
-    let _ = hw.read(ChainReg::SpiDr);
-    let _ = hw.read(ChainReg::SpiSr);
+    spi::drain(hw, ChainReg::Spi);
 }
 
 /// Wait (at most `polls` reads) until SPI1 is not busy; false if it stays
 /// busy.
 fn spi_idle(hw: &mut impl ChainHw, polls: u32) -> bool {
-    (0..polls).any(|_| hw.read(ChainReg::SpiSr) & SPI_SR_BSY == 0)
+    spi::wait_idle(hw, ChainReg::Spi, polls)
 }
 
-/// Clear every flag of streams 0 and 3 (write 1 to clear; the other
+/// Clear every flag of streams 0 and 3 (one LIFCR write; the other
 /// streams' bits are written 0, which changes nothing).
 fn clear_flags(hw: &mut impl ChainHw) {
-    hw.write(ChainReg::DmaLifcr, STREAM_FLAGS);
+    const WORDS: [u32; 2] = dma::clear_words(&[(RX_STREAM, Flags::ALL), (TX_STREAM, Flags::ALL)]);
+    dma::clear_with(hw, ChainReg::Dma, WORDS);
 }
+
+/// The DMA2_LISR bits that are errors of either stream, under the one rule
+/// of [`crate::dma`]: the receive stream's FEIF counts, the transmit
+/// stream's does not.
+const ERRORS: u32 = RX.role.errors().at(RX_STREAM) | TX.role.errors().at(TX_STREAM);
+/// The transmit stream's error bits (read at the deadline).
+const TX_ERRORS: u32 = TX.role.errors().at(TX_STREAM);
 
 /// The clocks the driver works from.
 #[derive(Clone, Copy, Debug)]
 pub struct ChainClocks {
     /// SPI1's APB2 clock.
     pub pclk2_hz: u32,
-    /// The CPU clock (busy waits of the blocking half).
+    /// The CPU clock (busy waits of the blocking windows).
     pub sysclk_hz: u32,
     /// TIM7's clock.
     pub timclk_hz: u32,
 }
-
-/// Set up SPI1, TIM7 and DMA2 streams 0/3 through `dma_hw` (CS high) and
-/// return the blocking half on `port_hw` and the DMA half on `dma_hw`. The
-/// caller has clocked and reset SPI1 and TIM7 and clocked DMA2.
-pub fn chain_spi<P: ChainHw, D: ChainHw + ChainMemory>(
-    port_hw: P,
-    mut dma_hw: D,
-    clocks: ChainClocks,
-) -> (ChainPort<P>, ChainDma<D>) {
-    let (div, br) = sck_divider(clocks.pclk2_hz, SCK_MAX_HZ);
-    let sck_hz = clocks.pclk2_hz / div;
-    let hw = &mut dma_hw;
-    hw.cs(true);
-    configure_spi(hw, br);
-
-    // TIM7: one-pulse, only an overflow raises the update interrupt; the
-    // prescaler (1) is loaded by the UG event, which sets no flag with URS.
-    hw.write(ChainReg::TimCr1, TIM_CR1_OPM | TIM_CR1_URS);
-    hw.write(ChainReg::TimPsc, 0);
-    hw.write(ChainReg::TimEgr, TIM_EGR_UG);
-    hw.write(ChainReg::TimSr, 0);
-    hw.write(ChainReg::TimDier, TIM_DIER_UIE);
-
-    // Both streams: byte to byte, memory incremented, direct mode. The
-    // receive stream interrupts on transfer complete and its errors; the
-    // transmit stream's errors raise no interrupt (its IRQ is not bound):
-    // they are read at the receive stream's interrupt and at the deadline.
-    let dr = hw.dr_address();
-    for s in [RX_STREAM, TX_STREAM] {
-        hw.modify(ChainReg::DmaCr(s), |cr| cr & !DMA_CR_EN);
-    }
-    let chsel = SPI1_CHANNEL << DMA_CR_CHSEL_SHIFT;
-    hw.write(ChainReg::DmaPar(RX_STREAM), dr);
-    hw.write(ChainReg::DmaFcr(RX_STREAM), DMA_FCR_RESET);
-    hw.write(
-        ChainReg::DmaCr(RX_STREAM),
-        chsel | DMA_CR_MINC | DMA_CR_PL_VERY_HIGH | DMA_CR_TCIE | DMA_CR_TEIE | DMA_CR_DMEIE,
-    );
-    hw.write(ChainReg::DmaPar(TX_STREAM), dr);
-    hw.write(ChainReg::DmaFcr(TX_STREAM), DMA_FCR_RESET);
-    hw.write(
-        ChainReg::DmaCr(TX_STREAM),
-        chsel | DMA_CR_DIR_M2P | DMA_CR_MINC | DMA_CR_PL_HIGH,
-    );
-    clear_flags(hw);
-
-    let gap_ticks = cycles(CS_DESELECT_NS, clocks.timclk_hz);
-    let setup_ticks = cycles(CS_SETUP_NS, clocks.timclk_hz);
-    let deselect_cycles = cycles(CS_DESELECT_NS, clocks.sysclk_hz);
-    let port = ChainPort {
-        hw: port_hw,
-        setup_cycles: cycles(CS_SETUP_NS, clocks.sysclk_hz),
-        deselect_cycles,
-        sck_hz,
-    };
-    let dma = ChainDma {
-        hw: dma_hw,
-        // The counter runs 0..=ARR and overflows one tick later, so ARR =
-        // ticks waits at least `ticks` + 1 periods of the timer clock.
-        gap_arr: u16::try_from(gap_ticks).unwrap_or(u16::MAX),
-        setup_arr: u16::try_from(setup_ticks).unwrap_or(u16::MAX),
-        timing: Timing::new(gap_ticks, setup_ticks, clocks.timclk_hz, sck_hz),
-        sck_hz,
-        deselect_cycles,
-        windows: 0,
-        n: 0,
-        window: 0,
-        phase: Phase::Idle,
-        deadline_us: 0,
-        stats: ChainDmaStats::default(),
-    };
-    (port, dma)
-}
-
-// --- the blocking half --------------------------------------------------------
-
-/// Blocking windows on SPI1 (the bridge's [`ChainBus`]): chain detection
-/// and the recovery windows after a bus error.
-#[derive(Debug)]
-pub struct ChainPort<H> {
-    hw: H,
-    setup_cycles: u32,
-    deselect_cycles: u32,
-    sck_hz: u32,
-}
-
-impl<H: ChainHw> ChainPort<H> {
-    /// The SCK rate actually configured.
-    pub fn sck_hz(&self) -> u32 {
-        self.sck_hz
-    }
-
-    /// The hardware handle (on the host: the model).
-    pub fn hw(&self) -> &H {
-        &self.hw
-    }
-
-    pub fn hw_mut(&mut self) -> &mut H {
-        &mut self.hw
-    }
-}
-
-impl<H: ChainHw> ChainBus for ChainPort<H> {
-    type Error = ChainSpiError;
-
-    fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), ChainSpiError> {
-        if self.hw.batch_running() {
-            return Err(ChainSpiError::Busy);
-        }
-        // CS is high; a DMA batch may have raised it just now.
-        self.hw.delay_cycles(self.deselect_cycles);
-        self.hw.cs(false);
-        self.hw.delay_cycles(self.setup_cycles);
-        let result = transfer_polled(&mut self.hw, tx, rx);
-        self.hw.cs(true);
-        self.hw.delay_cycles(self.deselect_cycles);
-        result
-    }
-}
-
-/// Full duplex, byte by byte through SPI1_DR (pads with 0x00 / drops extra
-/// bytes if the lengths ever differ; the chain always passes equal ones).
-fn transfer_polled(hw: &mut impl ChainHw, tx: &[u8], rx: &mut [u8]) -> Result<(), ChainSpiError> {
-    drain_spi(hw);
-    for i in 0..tx.len().max(rx.len()) {
-        if !(0..POLLS).any(|_| hw.read(ChainReg::SpiSr) & SPI_SR_TXE != 0) {
-            return Err(ChainSpiError::Stuck);
-        }
-        let byte = tx.get(i).copied().unwrap_or(0);
-        hw.write(ChainReg::SpiDr, u32::from(byte));
-        if !(0..POLLS).any(|_| hw.read(ChainReg::SpiSr) & SPI_SR_RXNE != 0) {
-            return Err(ChainSpiError::Stuck);
-        }
-        // 8-bit frames: DR's low byte.
-        let got = hw.read(ChainReg::SpiDr) as u8;
-        if let Some(slot) = rx.get_mut(i) {
-            *slot = got;
-        }
-    }
-    let sr = hw.read(ChainReg::SpiSr);
-    if sr & (SPI_SR_OVR | SPI_SR_MODF) != 0 {
-        drain_spi(hw);
-        let br = (hw.read(ChainReg::SpiCr1) & SPI_CR1_BR_MASK) >> SPI_CR1_BR_SHIFT;
-        configure_spi(hw, br);
-        return Err(ChainSpiError::Spi);
-    }
-    // TXE says the last byte left DR, not that it left the wire: CS may
-    // rise only once BSY is clear (RM0090 §28.3.8).
-    if spi_idle(hw, POLLS) {
-        Ok(())
-    } else {
-        Err(ChainSpiError::Stuck)
-    }
-}
-
-// --- the DMA half -------------------------------------------------------------
 
 /// Where the batch is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -521,7 +347,7 @@ pub struct ChainDmaStats {
     pub timeouts: u32,
 }
 
-/// The DMA half's times, worked out once (no division per batch).
+/// The batches' times, worked out once (no division per batch).
 #[derive(Clone, Copy, Debug)]
 struct Timing {
     /// TIM7's gap and set-up, ns.
@@ -551,16 +377,18 @@ impl Timing {
     }
 }
 
-/// The control tick's chain driver: batches of windows by DMA2 and TIM7
-/// (module docs). `start` and `poll` from the control tick; `on_dma` from
+/// The chain's one driver (module docs): blocking windows
+/// ([`ChainSpi::window`], its [`ChainBus`]) and batches of windows by DMA2
+/// and TIM7 — `start` and `poll` from the control tick, `on_dma` from
 /// `DMA2_STREAM0`, `on_timer` from `TIM7`.
 #[derive(Debug)]
-pub struct ChainDma<H> {
+pub struct ChainSpi<H> {
     hw: H,
     gap_arr: u16,
     setup_arr: u16,
     timing: Timing,
     sck_hz: u32,
+    setup_cycles: u32,
     deselect_cycles: u32,
     windows: u8,
     n: u8,
@@ -571,7 +399,59 @@ pub struct ChainDma<H> {
     stats: ChainDmaStats,
 }
 
-impl<H: ChainHw + ChainMemory> ChainDma<H> {
+impl<H: ChainHw + ChainMemory> ChainSpi<H> {
+    /// Set up SPI1, TIM7 and DMA2 streams 0/3 on `hw` (CS high) and return
+    /// their one driver. The caller has clocked and reset SPI1 and TIM7 and
+    /// clocked DMA2.
+    pub fn new(mut hw: H, clocks: ChainClocks) -> ChainSpi<H> {
+        let (div, br) = sck_divider(clocks.pclk2_hz, SCK_MAX_HZ);
+        let sck_hz = clocks.pclk2_hz / div;
+        hw.cs(true);
+        configure_spi(&mut hw, br);
+
+        // TIM7: one-pulse, only an overflow raises the update interrupt; the
+        // prescaler (1) is loaded by the UG event, which sets no flag with
+        // URS.
+        hw.write(ChainReg::TimCr1, TIM_CR1_OPM | TIM_CR1_URS);
+        hw.write(ChainReg::TimPsc, 0);
+        hw.write(ChainReg::TimEgr, TIM_EGR_UG);
+        hw.write(ChainReg::TimSr, 0);
+        hw.write(ChainReg::TimDier, TIM_DIER_UIE);
+
+        // Both streams: byte to byte, memory incremented, direct mode
+        // ([`RX`], [`TX`]). The receive stream interrupts on transfer
+        // complete and its errors; the transmit stream's errors raise no
+        // interrupt (its IRQ is not bound): they are read at the receive
+        // stream's interrupt and at the deadline.
+        let dr = hw.dr_address();
+        for s in [RX_STREAM, TX_STREAM] {
+            dma::disable(&mut hw, ChainReg::Dma, s);
+        }
+        dma::configure(&mut hw, ChainReg::Dma, &RX, dr);
+        dma::configure(&mut hw, ChainReg::Dma, &TX, dr);
+        clear_flags(&mut hw);
+
+        let gap_ticks = cycles(CS_DESELECT_NS, clocks.timclk_hz);
+        let setup_ticks = cycles(CS_SETUP_NS, clocks.timclk_hz);
+        ChainSpi {
+            hw,
+            // The counter runs 0..=ARR and overflows one tick later, so ARR
+            // = ticks waits at least `ticks` + 1 periods of the timer clock.
+            gap_arr: u16::try_from(gap_ticks).unwrap_or(u16::MAX),
+            setup_arr: u16::try_from(setup_ticks).unwrap_or(u16::MAX),
+            timing: Timing::new(gap_ticks, setup_ticks, clocks.timclk_hz, sck_hz),
+            sck_hz,
+            setup_cycles: cycles(CS_SETUP_NS, clocks.sysclk_hz),
+            deselect_cycles: cycles(CS_DESELECT_NS, clocks.sysclk_hz),
+            windows: 0,
+            n: 0,
+            window: 0,
+            phase: Phase::Idle,
+            deadline_us: 0,
+            stats: ChainDmaStats::default(),
+        }
+    }
+
     /// The hardware handle (on the host: the model).
     pub fn hw(&self) -> &H {
         &self.hw
@@ -581,16 +461,31 @@ impl<H: ChainHw + ChainMemory> ChainDma<H> {
         &mut self.hw
     }
 
+    // --- blocking windows -------------------------------------------------------
+
+    /// One blocking window (chain detection, the recovery windows): CS high
+    /// for t_disCS (a batch may have raised it just before), CS low,
+    /// t_setCS, the bytes polled through SPI1_DR, CS high, t_disCS.
+    /// [`ChainSpiError::Busy`] while a batch is on the bus.
+    pub fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), ChainSpiError> {
+        if self.is_running() {
+            return Err(ChainSpiError::Busy);
+        }
+        let hw = &mut self.hw;
+        hw.delay_cycles(self.deselect_cycles);
+        hw.cs(false);
+        hw.delay_cycles(self.setup_cycles);
+        let result = transfer_polled(hw, tx, rx);
+        hw.cs(true);
+        hw.delay_cycles(self.deselect_cycles);
+        result
+    }
+
+    // --- batches by DMA -----------------------------------------------------------
+
     /// Copy the plan's windows into the buffers and start the batch (its
-    /// first gap). `now_us`: the monotonic's µs, for the deadline. The
-    /// port is the bridge's blocking half (QEMU's stand-in clocks its
-    /// simulated chips through it; the DMA does not need it).
-    pub fn start<P>(
-        &mut self,
-        plan: &Plan,
-        _port: &mut P,
-        now_us: u64,
-    ) -> Result<(), ChainSpiError> {
+    /// first gap). `now_us`: the monotonic's µs, for the deadline.
+    pub fn start(&mut self, plan: &Plan, now_us: u64) -> Result<(), ChainSpiError> {
         if self.phase != Phase::Idle {
             // Running, or over and not yet collected by `poll`.
             return Err(ChainSpiError::Busy);
@@ -601,11 +496,13 @@ impl<H: ChainHw + ChainMemory> ChainDma<H> {
         }
         // Whole rows: two words each, no length to check.
         self.hw.write_tx_rows(plan.frames(), windows);
-        let hw = &mut self.hw;
-        if !(0..SHORT_POLLS).any(|_| {
-            hw.read(ChainReg::DmaCr(RX_STREAM)) & DMA_CR_EN == 0
-                && hw.read(ChainReg::DmaCr(TX_STREAM)) & DMA_CR_EN == 0
-        }) {
+        if !dma::wait_disabled(
+            &mut self.hw,
+            ChainReg::Dma,
+            RX_STREAM,
+            TX_STREAM,
+            SHORT_POLLS,
+        ) {
             self.stats.stuck = self.stats.stuck.saturating_add(1);
             return Err(ChainSpiError::Stuck);
         }
@@ -615,10 +512,9 @@ impl<H: ChainHw + ChainMemory> ChainDma<H> {
         self.window = 0;
         self.deadline_us = now_us.saturating_add(self.bound_us());
         self.stats.batches = self.stats.batches.saturating_add(1);
-        self.hw.set_batch_running(true);
         drain_spi(&mut self.hw);
         self.hw
-            .modify(ChainReg::SpiCr2, |cr2| cr2 | SPI_CR2_RXDMAEN);
+            .modify(ChainReg::Spi(SpiReg::Cr2), |cr2| cr2 | SPI_CR2_RXDMAEN);
         self.arm();
         self.phase = Phase::Gap;
         self.timer(self.gap_arr);
@@ -635,8 +531,8 @@ impl<H: ChainHw + ChainMemory> ChainDma<H> {
                 if now_us < self.deadline_us {
                     return BatchState::Running;
                 }
-                let tx_error = self.hw.read(ChainReg::DmaLisr) & (TEIF3 | DMEIF3) != 0;
-                let why = if tx_error {
+                let lisr = self.hw.read(ChainReg::Dma(DmaReg::Lisr));
+                let why = if lisr & TX_ERRORS != 0 {
                     self.stats.dma_errors = self.stats.dma_errors.saturating_add(1);
                     ChainSpiError::Dma
                 } else {
@@ -662,11 +558,11 @@ impl<H: ChainHw + ChainMemory> ChainDma<H> {
 
     /// `DMA2_STREAM0`: the receive stream's transfer complete or an error.
     pub fn on_dma(&mut self) {
-        let lisr = self.hw.read(ChainReg::DmaLisr);
+        let lisr = self.hw.read(ChainReg::Dma(DmaReg::Lisr));
         self.dma_event(lisr);
     }
 
-    /// [`ChainDma::on_dma`] with DMA2_LISR as read (`lisr`): the cost bench
+    /// [`ChainSpi::on_dma`] with DMA2_LISR as read (`lisr`): the cost bench
     /// feeds it under QEMU, whose DMA2 reads 0.
     pub fn dma_event(&mut self, lisr: u32) {
         clear_flags(&mut self.hw);
@@ -682,7 +578,7 @@ impl<H: ChainHw + ChainMemory> ChainDma<H> {
         if lisr & TCIF0 == 0 {
             return;
         }
-        let sr = self.hw.read(ChainReg::SpiSr);
+        let sr = self.hw.read(ChainReg::Spi(SpiReg::Sr));
         if sr & (SPI_SR_OVR | SPI_SR_MODF) != 0 {
             self.stats.spi_errors = self.stats.spi_errors.saturating_add(1);
             self.fail(ChainSpiError::Spi);
@@ -696,16 +592,15 @@ impl<H: ChainHw + ChainMemory> ChainDma<H> {
             return;
         }
         self.hw
-            .modify(ChainReg::SpiCr2, |cr2| cr2 & !SPI_CR2_TXDMAEN);
+            .modify(ChainReg::Spi(SpiReg::Cr2), |cr2| cr2 & !SPI_CR2_TXDMAEN);
         compiler_fence(Ordering::SeqCst);
         self.stats.windows = self.stats.windows.saturating_add(1);
         self.window = self.window.saturating_add(1);
         if self.window >= self.windows {
             self.hw.cs(true);
             self.hw
-                .modify(ChainReg::SpiCr2, |cr2| cr2 & !SPI_CR2_RXDMAEN);
+                .modify(ChainReg::Spi(SpiReg::Cr2), |cr2| cr2 & !SPI_CR2_RXDMAEN);
             self.phase = Phase::Done(Ok(()));
-            self.hw.set_batch_running(false);
             return;
         }
         // Arm first, so the gap starts right at the CS rise.
@@ -728,7 +623,7 @@ impl<H: ChainHw + ChainMemory> ChainDma<H> {
                 self.phase = Phase::Shift;
                 compiler_fence(Ordering::SeqCst);
                 self.hw
-                    .modify(ChainReg::SpiCr2, |cr2| cr2 | SPI_CR2_TXDMAEN);
+                    .modify(ChainReg::Spi(SpiReg::Cr2), |cr2| cr2 | SPI_CR2_TXDMAEN);
             }
             Phase::Idle | Phase::Shift | Phase::Done(_) => {}
         }
@@ -788,13 +683,11 @@ impl<H: ChainHw + ChainMemory> ChainDma<H> {
         let n = u32::from(self.n);
         let hw = &mut self.hw;
         clear_flags(hw);
-        hw.write(ChainReg::DmaM0ar(RX_STREAM), rx);
-        hw.write(ChainReg::DmaNdtr(RX_STREAM), n);
-        hw.write(ChainReg::DmaM0ar(TX_STREAM), tx);
-        hw.write(ChainReg::DmaNdtr(TX_STREAM), n);
+        dma::load(hw, ChainReg::Dma, RX_STREAM, rx, n);
+        dma::load(hw, ChainReg::Dma, TX_STREAM, tx, n);
         compiler_fence(Ordering::SeqCst);
-        hw.modify(ChainReg::DmaCr(RX_STREAM), |cr| cr | DMA_CR_EN);
-        hw.modify(ChainReg::DmaCr(TX_STREAM), |cr| cr | DMA_CR_EN);
+        dma::enable(hw, ChainReg::Dma, RX_STREAM);
+        dma::enable(hw, ChainReg::Dma, TX_STREAM);
     }
 
     /// TIM7 once, `arr` + 1 timer-clock periods, then its interrupt.
@@ -817,11 +710,11 @@ impl<H: ChainHw + ChainMemory> ChainDma<H> {
         let hw = &mut self.hw;
         hw.write(ChainReg::TimCr1, TIM_CR1_OPM | TIM_CR1_URS);
         hw.write(ChainReg::TimSr, 0);
-        hw.modify(ChainReg::SpiCr2, |cr2| {
+        hw.modify(ChainReg::Spi(SpiReg::Cr2), |cr2| {
             cr2 & !(SPI_CR2_TXDMAEN | SPI_CR2_RXDMAEN)
         });
         for s in [RX_STREAM, TX_STREAM] {
-            hw.modify(ChainReg::DmaCr(s), |cr| cr & !DMA_CR_EN);
+            dma::disable(hw, ChainReg::Dma, s);
         }
         let _ = spi_idle(hw, SHORT_POLLS);
         drain_spi(hw);
@@ -831,6 +724,50 @@ impl<H: ChainHw + ChainMemory> ChainDma<H> {
         hw.unpend_interrupts();
         hw.cs(true);
         hw.delay_cycles(self.deselect_cycles);
-        hw.set_batch_running(false);
+    }
+}
+
+/// The bridge's bus: blocking windows on the one driver.
+impl<H: ChainHw + ChainMemory> ChainBus for ChainSpi<H> {
+    type Error = ChainSpiError;
+
+    fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), ChainSpiError> {
+        ChainSpi::window(self, tx, rx)
+    }
+}
+
+/// Full duplex, byte by byte through SPI1_DR (pads with 0x00 / drops extra
+/// bytes if the lengths ever differ; the chain always passes equal ones).
+fn transfer_polled(hw: &mut impl ChainHw, tx: &[u8], rx: &mut [u8]) -> Result<(), ChainSpiError> {
+    let (sr, dr) = (ChainReg::Spi(SpiReg::Sr), ChainReg::Spi(SpiReg::Dr));
+    drain_spi(hw);
+    for i in 0..tx.len().max(rx.len()) {
+        if !(0..POLLS).any(|_| hw.read(sr) & SPI_SR_TXE != 0) {
+            return Err(ChainSpiError::Stuck);
+        }
+        let byte = tx.get(i).copied().unwrap_or(0);
+        hw.write(dr, u32::from(byte));
+        if !(0..POLLS).any(|_| hw.read(sr) & SPI_SR_RXNE != 0) {
+            return Err(ChainSpiError::Stuck);
+        }
+        // 8-bit frames: DR's low byte.
+        let got = hw.read(dr) as u8;
+        if let Some(slot) = rx.get_mut(i) {
+            *slot = got;
+        }
+    }
+    let status = hw.read(sr);
+    if status & (SPI_SR_OVR | SPI_SR_MODF) != 0 {
+        drain_spi(hw);
+        let cr1 = hw.read(ChainReg::Spi(SpiReg::Cr1));
+        configure_spi(hw, (cr1 & SPI_CR1_BR_MASK) >> SPI_CR1_BR_SHIFT);
+        return Err(ChainSpiError::Spi);
+    }
+    // TXE says the last byte left DR, not that it left the wire: CS may
+    // rise only once BSY is clear (RM0090 §28.3.8).
+    if spi_idle(hw, POLLS) {
+        Ok(())
+    } else {
+        Err(ChainSpiError::Stuck)
     }
 }

@@ -11,6 +11,7 @@
 pub mod analog;
 pub mod chain_spi;
 pub mod clock;
+pub mod dma;
 pub mod flash;
 pub mod i2c_slave;
 pub mod ioext_spi;

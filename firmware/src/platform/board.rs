@@ -19,9 +19,9 @@ use crate::board::{
     self, ChainCs, ChainGapTimer, ChainMiso, ChainMosi, ChainSck, ChainSpi, IoExtCs, IoExtMiso,
     IoExtMosi, IoExtSck, IoExtSpi, IoExtSpiDma, IoExtTimer, IoExtTimerDma,
 };
-use crate::drivers::chain_spi::{self, ChainBuffers, ChainPort};
+use crate::drivers::chain_spi::{self, ChainBuffers, ChainCell};
 use crate::drivers::flash::StoreFlash;
-use crate::drivers::ioext_spi::{IoExtBuffers, IoExtPort};
+use crate::drivers::ioext_spi::{self, IoExtBuffers, IoExtPort};
 
 pub use crate::drivers::analog::Analog;
 pub use crate::drivers::i2c_slave::I2cSlaveDriver;
@@ -145,16 +145,21 @@ impl TickTimer {
     }
 }
 
-/// The chain's bus for the bridge: blocking windows on SPI1 and the common
-/// CS line (chain detection, recovery after a bus error).
-pub type ChainDriver = ChainPort;
+/// The chain's one driver: SPI1, DMA2 streams 0/3, TIM7 and CS — blocking
+/// windows and the control tick's batches by DMA, CS gaps by TIM7
+/// (`drivers::chain_spi`).
+pub type ChainDriver = chain_spi::ChainSpi;
 
-/// The control tick's chain driver: each batch of windows by DMA2 (streams
-/// 0 and 3) with TIM7 timing the CS gaps (`drivers::chain_spi`).
-pub use crate::drivers::chain_spi::ChainDma;
+/// The bridge's chain bus: a handle on [`ChainDriver`] that asks it for
+/// each blocking window (chain detection, recovery after a bus error).
+pub type ChainLink = chain_spi::ChainLink<ChainDriver>;
 
-/// Start SPI1 for the chain (mode 3, ≤ 4 MHz), TIM7 and DMA2 streams 0/3;
-/// the bridge's half and the control tick's (see `drivers::chain_spi`).
+/// Where the one driver lives (`drivers::chain_spi::ChainCell`).
+static CHAIN: ChainCell<ChainDriver> = ChainCell::new();
+
+/// Start SPI1 for the chain (mode 3, ≤ 4 MHz), TIM7 and DMA2 streams 0/3,
+/// put their one driver where the control tick and the chain's interrupts
+/// reach it ([`with_chain`]) and return the bridge's handle on it.
 pub fn chain_driver(
     spi: ChainSpi,
     pins: (ChainSck, ChainMiso, ChainMosi),
@@ -162,8 +167,15 @@ pub fn chain_driver(
     tim: ChainGapTimer,
     bufs: &'static mut ChainBuffers,
     rcc: &mut Rcc,
-) -> (ChainDriver, ChainDma) {
-    chain_spi::chain_spi(spi, pins, cs, tim, bufs, rcc)
+) -> ChainLink {
+    CHAIN.install(chain_spi::chain_spi(spi, pins, cs, tim, bufs, rcc))
+}
+
+/// Run `f` on the chain's one driver, interrupts masked (`None` before
+/// [`chain_driver`]).
+#[inline]
+pub fn with_chain<R>(f: impl FnOnce(&mut ChainDriver) -> R) -> Option<R> {
+    CHAIN.with(f)
 }
 
 /// The I/O extension's port: SPI2 / TIM1 with DMA1 / DMA2
@@ -183,7 +195,7 @@ pub fn ioext_driver(
     bufs: &'static mut IoExtBuffers,
     rcc: &mut Rcc,
 ) -> IoExtDriver {
-    IoExtPort::new(spi, tim, dma1, dma2, pins, cs, bufs, rcc)
+    ioext_spi::ioext_port(spi, tim, dma1, dma2, pins, cs, bufs, rcc)
 }
 
 /// The settings store's flash: sectors 10 and 11.

@@ -30,11 +30,12 @@
 //!   not follow its braking.) The bridge's clock counts ticks, so the two
 //!   drift apart by what the ticks lose, as a board's MCU and chip
 //!   oscillators do by theirs.
-//!   [`ChainDma`] has the board's DMA driver's API but clocks a batch's
-//!   windows through those chips at once in `start` and hands them over at
-//!   the next `poll`, so the app's pipelined control tick runs unchanged
-//!   (QEMU 7.2 has no DMA controller and no TIM7: the board's DMA path is
-//!   only built here).
+//!   It has the board's one chain driver's API — blocking windows, and
+//!   batches that it clocks through those chips at once in `start` and
+//!   hands over at the next `poll` — and lives in the same kind of cell,
+//!   behind the same [`ChainLink`], so the app's pipelined control tick
+//!   runs unchanged (QEMU 7.2 has no DMA controller and no TIM7: the
+//!   board's DMA path is only built here).
 //! * **Settings flash**: [`SettingsFlash`] (`qemu_flash.rs`) keeps the
 //!   store's two erase units in RAM, loaded at boot from a host file and
 //!   written through by semihosting, so settings saved under QEMU survive a
@@ -73,7 +74,7 @@ use crate::board::{
     HostI2cSda, IoExtCs, IoExtMiso, IoExtMosi, IoExtSck, IoExtSpi, IoExtSpiDma, IoExtTimer,
     IoExtTimerDma, SenseAdc, SupplySense,
 };
-use crate::drivers::chain_spi::{ChainBuffers, ChainSpiError};
+use crate::drivers::chain_spi::{ChainBuffers, ChainCell, ChainSpiError};
 use crate::drivers::ioext_spi::{IoExtBuffers, IoExtError, Started};
 use crate::drivers::usb::Link;
 use bridge_logic::transport::usb::REPORT_LEN;
@@ -264,24 +265,16 @@ impl HostClock {
     }
 }
 
-/// The chain stand-in: [`AXES`] simulated chips that live on QEMU's
-/// virtual clock, the host's time (module docs).
-pub struct ChainDriver {
+/// [`AXES`] simulated chips that live on QEMU's virtual clock, the host's
+/// time (module docs).
+struct Chips {
     chain: SimChain,
     clock: HostClock,
     /// `clock` at the last window, ns.
     last_ns: u64,
 }
 
-impl ChainDriver {
-    /// The simulated chips.
-    pub fn chain(&self) -> &SimChain {
-        &self.chain
-    }
-}
-
-impl ChainBus for ChainDriver {
-    /// The board's error type; the simulated chips never fail.
+impl ChainBus for Chips {
     type Error = ChainSpiError;
 
     fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), ChainSpiError> {
@@ -294,29 +287,40 @@ impl ChainBus for ChainDriver {
     }
 }
 
-/// The control tick's chain driver under QEMU: the board driver's API
-/// (`drivers::chain_spi::ChainDma`), the windows clocked through
-/// [`ChainDriver`]'s simulated chips at `start` (module docs).
-pub struct ChainDma {
+/// The chain's one driver under QEMU: the board driver's API
+/// (`drivers::chain_spi::ChainSpi`: blocking windows, batches), every
+/// window clocked through the simulated chips, a batch's at `start`
+/// (module docs).
+pub struct ChainDriver {
+    chips: Chips,
     bufs: &'static mut ChainBuffers,
     /// A batch clocked and not yet handed over: its windows and chips.
     done: Option<(usize, usize)>,
 }
 
-impl ChainDma {
+impl ChainBus for ChainDriver {
+    /// The board's error type; the simulated chips never fail.
+    type Error = ChainSpiError;
+
+    fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), ChainSpiError> {
+        self.chips.window(tx, rx)
+    }
+}
+
+impl ChainDriver {
+    /// The simulated chips.
+    pub fn chain(&self) -> &SimChain {
+        &self.chips.chain
+    }
+
     /// Clock the plan's windows through the simulated chips now; the next
     /// `poll` hands them over.
-    pub fn start(
-        &mut self,
-        plan: &Plan,
-        port: &mut ChainDriver,
-        _now_us: u64,
-    ) -> Result<(), ChainSpiError> {
+    pub fn start(&mut self, plan: &Plan, _now_us: u64) -> Result<(), ChainSpiError> {
         if self.done.is_some() {
             return Err(ChainSpiError::Busy);
         }
         let (windows, n) = (plan.windows(), plan.devices());
-        clock_windows(port, plan, n, self.bufs.rx_mut())?;
+        clock_windows(&mut self.chips, plan, n, self.bufs.rx_mut())?;
         self.done = Some((windows, n));
         Ok(())
     }
@@ -346,8 +350,23 @@ impl ChainDma {
     }
 }
 
+/// The bridge's chain bus: a handle on [`ChainDriver`] (as on the board).
+pub type ChainLink = crate::drivers::chain_spi::ChainLink<ChainDriver>;
+
+/// Where the one driver lives (`drivers::chain_spi::ChainCell`).
+static CHAIN: ChainCell<ChainDriver> = ChainCell::new();
+
+/// Run `f` on the chain's one driver, interrupts masked (`None` before
+/// [`chain_driver`]).
+#[inline]
+pub fn with_chain<R>(f: impl FnOnce(&mut ChainDriver) -> R) -> Option<R> {
+    CHAIN.with(f)
+}
+
 /// The simulated chain instead of SPI1, TIM7 and DMA2 (which, and whose
-/// pins, stay as `board::configure` left them). Start the monotonic first.
+/// pins, stay as `board::configure` left them), put where the control tick
+/// reaches it ([`with_chain`]); returns the bridge's handle. Start the
+/// monotonic first.
 pub fn chain_driver(
     _spi: ChainSpi,
     _pins: (ChainSck, ChainMiso, ChainMosi),
@@ -355,7 +374,7 @@ pub fn chain_driver(
     _tim: ChainGapTimer,
     bufs: &'static mut ChainBuffers,
     rcc: &mut Rcc,
-) -> (ChainDriver, ChainDma) {
+) -> ChainLink {
     let mut chain = SimChain::new(AXES);
     // The last axis has a home switch: a cam on its shaft presses SW below
     // HOME_CAM_EDGE microsteps (the end-to-end test homes it over Modbus).
@@ -367,14 +386,15 @@ pub fn chain_driver(
     }
     let mut clock = HostClock::start(rcc);
     let last_ns = clock.now_ns();
-    (
-        ChainDriver {
+    CHAIN.install(ChainDriver {
+        chips: Chips {
             chain,
             clock,
             last_ns,
         },
-        ChainDma { bufs, done: None },
-    )
+        bufs,
+        done: None,
+    })
 }
 
 /// Where the last simulated axis's home switch closes, microsteps (1/128:

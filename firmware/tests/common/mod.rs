@@ -139,14 +139,10 @@ pub fn long_plan(n: usize) -> bridge_logic::powerstep::Plan {
     }
 }
 
-/// The chain driver's two halves on the target's SPI1, TIM7 and chain pins,
-/// with their `'static` buffers, as the app takes them.
-pub fn chain(
-    mut t: Target,
-) -> (
-    firmware::drivers::chain_spi::ChainPort,
-    firmware::drivers::chain_spi::ChainDma,
-) {
+/// The chain's one driver on the target's SPI1, TIM7 and chain pins, with
+/// its `'static` buffers, as the app takes it (the app then puts it in
+/// `platform`'s cell; the tests use it directly).
+pub fn chain(mut t: Target) -> firmware::drivers::chain_spi::ChainSpi {
     use firmware::drivers::chain_spi::{chain_spi, ChainBuffers};
     let p = t.pins;
     let Some(bufs) = cortex_m::singleton!(: ChainBuffers = ChainBuffers::new()) else {
@@ -165,12 +161,12 @@ pub fn chain(
 /// The I/O extension's board driver on the target's SPI2, TIM1, DMA1, DMA2
 /// and extension pins, with its `'static` buffers, as the app takes it.
 pub fn ioext_port(mut t: Target) -> firmware::drivers::ioext_spi::IoExtPort {
-    use firmware::drivers::ioext_spi::{IoExtBuffers, IoExtPort};
+    use firmware::drivers::ioext_spi::{ioext_port, IoExtBuffers};
     let p = t.pins;
     let Some(bufs) = cortex_m::singleton!(: IoExtBuffers = IoExtBuffers::new()) else {
         defmt::panic!("buffers taken twice");
     };
-    IoExtPort::new(
+    ioext_port(
         t.spi2,
         t.tim1,
         t.dma1,

@@ -32,16 +32,24 @@
 //!   model checks it returns exactly what MISO carried.
 //! * An interrupt line is level-sensitive here: NVIC pending bits are not
 //!   modelled ([`ChainHandle::unpend_interrupts`] only counts).
+//!
+//! [`SharedChain`] shares the one driver the way the firmware's
+//! critical-section cell does: the bridge's chain bus is a handle that asks
+//! it for each blocking window, the tests (the control tick and the
+//! interrupts) reach the same driver.
 
 use std::cell::{Ref, RefCell, RefMut};
 use std::rc::Rc;
 
-use bridge_logic::powerstep::chain::{Frames, MAX_DEVICES, MAX_WINDOWS};
+use bridge_logic::powerstep::chain::{ChainBus, Frames, MAX_DEVICES, MAX_WINDOWS};
 use drivers_core::chain_spi::bits::*;
 use drivers_core::chain_spi::{
-    ChainBuffers, ChainHw, ChainMemory, ChainReg, CS_DESELECT_NS, CS_SETUP_NS, DMEIF0, FEIF0,
-    HTIF0, RX_STREAM, SPI1_CHANNEL, STREAM_FLAGS, TCIF0, TCIF3, TEIF0, TX_STREAM,
+    ChainBuffers, ChainHw, ChainMemory, ChainReg, ChainSpi, ChainSpiError, CS_DESELECT_NS,
+    CS_SETUP_NS, DMEIF0, FEIF0, HTIF0, RX_STREAM, SPI1_CHANNEL, STREAM_FLAGS, TCIF0, TCIF3, TEIF0,
+    TX_STREAM,
 };
+use drivers_core::dma::DmaReg;
+use drivers_core::spi::SpiReg;
 use drivers_core::Regs;
 use stepbridge_sim::SimChain;
 
@@ -117,7 +125,6 @@ pub struct ChainModel {
     window_setup: u64,
     pub chain: SimChain,
     pub mem: ChainBuffers,
-    batch_running: bool,
     pub windows: Vec<Window>,
     pub unpends: u32,
     /// Error flags to raise on the named stream's next transfer.
@@ -185,7 +192,6 @@ impl ChainModel {
             window_setup: 0,
             chain,
             mem: ChainBuffers::new(),
-            batch_running: false,
             windows: Vec::new(),
             unpends: 0,
             fail_stream: None,
@@ -488,7 +494,7 @@ impl ChainModel {
     }
 
     /// S7, S8: a write to a stream register.
-    fn stream_write(&mut self, reg: ChainReg, stream: u8, value: u32) {
+    fn stream_write(&mut self, reg: DmaReg, stream: u8, value: u32) {
         let Some(i) = idx(stream) else {
             self.violate(format!("{reg:?}: stream {stream} is not the chain's"));
             return;
@@ -496,7 +502,7 @@ impl ChainModel {
         let s = self.streams[i];
         let enabled = s.cr & DMA_CR_EN != 0;
         match reg {
-            ChainReg::DmaCr(_) => {
+            DmaReg::Cr(_) => {
                 if enabled && (value ^ s.cr) & !DMA_CR_EN != 0 {
                     self.violate(format!("S7: stream {stream} CR reconfigured while EN = 1"));
                 }
@@ -511,10 +517,10 @@ impl ChainModel {
                     "S7: {reg:?} written while stream {stream} is enabled"
                 ));
             }
-            ChainReg::DmaNdtr(_) => self.streams[i].ndtr = value & 0xFFFF,
-            ChainReg::DmaPar(_) => self.streams[i].par = value,
-            ChainReg::DmaM0ar(_) => self.streams[i].m0ar = value,
-            ChainReg::DmaFcr(_) => self.streams[i].fcr = value,
+            DmaReg::Ndtr(_) => self.streams[i].ndtr = value & 0xFFFF,
+            DmaReg::Par(_) => self.streams[i].par = value,
+            DmaReg::M0ar(_) => self.streams[i].m0ar = value,
+            DmaReg::Fcr(_) => self.streams[i].fcr = value,
             _ => {}
         }
     }
@@ -616,21 +622,22 @@ impl ChainModel {
 impl ChainModel {
     fn read_reg(&mut self, reg: ChainReg) -> u32 {
         match reg {
-            ChainReg::SpiCr1 => self.spi_cr1,
-            ChainReg::SpiCr2 => self.spi_cr2,
-            ChainReg::SpiSr => self.spi_sr(),
-            ChainReg::SpiDr => {
+            ChainReg::Spi(SpiReg::Cr1) => self.spi_cr1,
+            ChainReg::Spi(SpiReg::Cr2) => self.spi_cr2,
+            ChainReg::Spi(SpiReg::Sr) => self.spi_sr(),
+            ChainReg::Spi(SpiReg::Dr) => {
                 self.rxne = false;
                 self.dr_read = true;
                 u32::from(self.rx_buf)
             }
-            ChainReg::DmaLisr => self.lisr,
-            ChainReg::DmaLifcr => 0,
-            ChainReg::DmaCr(s) => idx(s).map_or(0, |i| self.streams[i].cr),
-            ChainReg::DmaNdtr(s) => idx(s).map_or(0, |i| self.streams[i].ndtr),
-            ChainReg::DmaPar(s) => idx(s).map_or(0, |i| self.streams[i].par),
-            ChainReg::DmaM0ar(s) => idx(s).map_or(0, |i| self.streams[i].m0ar),
-            ChainReg::DmaFcr(s) => idx(s).map_or(0, |i| self.streams[i].fcr),
+            ChainReg::Dma(DmaReg::Lisr) => self.lisr,
+            // Streams 4–7 are not the chain's: their HISR reads 0 here.
+            ChainReg::Dma(DmaReg::Hisr | DmaReg::Lifcr | DmaReg::Hifcr) => 0,
+            ChainReg::Dma(DmaReg::Cr(s)) => idx(s).map_or(0, |i| self.streams[i].cr),
+            ChainReg::Dma(DmaReg::Ndtr(s)) => idx(s).map_or(0, |i| self.streams[i].ndtr),
+            ChainReg::Dma(DmaReg::Par(s)) => idx(s).map_or(0, |i| self.streams[i].par),
+            ChainReg::Dma(DmaReg::M0ar(s)) => idx(s).map_or(0, |i| self.streams[i].m0ar),
+            ChainReg::Dma(DmaReg::Fcr(s)) => idx(s).map_or(0, |i| self.streams[i].fcr),
             ChainReg::TimCr1 => self.tim_cr1,
             ChainReg::TimDier => self.tim_dier,
             ChainReg::TimSr => self.tim_sr,
@@ -643,17 +650,29 @@ impl ChainModel {
 
     fn write_reg(&mut self, reg: ChainReg, value: u32) {
         match reg {
-            ChainReg::SpiCr1 => self.spi_cr1 = value & 0xFFFF,
-            ChainReg::SpiCr2 => self.spi_cr2 = value & 0xFF,
-            ChainReg::SpiSr => {}
-            ChainReg::SpiDr => self.dr_write(value as u8),
-            ChainReg::DmaLisr => self.violate("LISR is read-only"),
-            ChainReg::DmaLifcr => self.lisr &= !value,
-            ChainReg::DmaCr(s)
-            | ChainReg::DmaNdtr(s)
-            | ChainReg::DmaPar(s)
-            | ChainReg::DmaM0ar(s)
-            | ChainReg::DmaFcr(s) => self.stream_write(reg, s, value),
+            ChainReg::Spi(SpiReg::Cr1) => self.spi_cr1 = value & 0xFFFF,
+            ChainReg::Spi(SpiReg::Cr2) => self.spi_cr2 = value & 0xFF,
+            ChainReg::Spi(SpiReg::Sr) => {}
+            ChainReg::Spi(SpiReg::Dr) => self.dr_write(value as u8),
+            ChainReg::Dma(DmaReg::Lisr | DmaReg::Hisr) => self.violate("LISR/HISR are read-only"),
+            ChainReg::Dma(DmaReg::Lifcr) => {
+                if value & !STREAM_FLAGS != 0 {
+                    self.violate(format!(
+                        "LIFCR {value:#010x} clears flags of streams not the chain's"
+                    ));
+                }
+                self.lisr &= !value;
+            }
+            ChainReg::Dma(DmaReg::Hifcr) => {
+                self.violate("HIFCR written: streams 4–7 are not the chain's");
+            }
+            ChainReg::Dma(
+                r @ (DmaReg::Cr(s)
+                | DmaReg::Ndtr(s)
+                | DmaReg::Par(s)
+                | DmaReg::M0ar(s)
+                | DmaReg::Fcr(s)),
+            ) => self.stream_write(r, s, value),
             ChainReg::TimCr1 => {
                 self.tim_cr1 = value & 0x8F;
                 self.tim_schedule();
@@ -684,8 +703,7 @@ impl ChainModel {
     }
 }
 
-/// A shared handle on the model: the driver's two halves each hold one,
-/// the tests a third.
+/// A shared handle on the model: the driver holds one, the tests another.
 #[derive(Clone, Debug)]
 pub struct ChainHandle(Rc<RefCell<ChainModel>>);
 
@@ -733,14 +751,6 @@ impl ChainHw for ChainHandle {
     fn unpend_interrupts(&mut self) {
         self.0.borrow_mut().unpends += 1;
     }
-
-    fn batch_running(&self) -> bool {
-        self.0.borrow().batch_running
-    }
-
-    fn set_batch_running(&mut self, running: bool) {
-        self.0.borrow_mut().batch_running = running;
-    }
 }
 
 impl ChainMemory for ChainHandle {
@@ -765,5 +775,31 @@ impl ChainMemory for ChainHandle {
 
     fn dr_address(&self) -> u32 {
         SPI1_DR
+    }
+}
+
+/// The chain's one driver, shared as the firmware shares it (its
+/// critical-section cell): the bridge's [`ChainBus`] is a clone that asks
+/// the driver for each blocking window; the tests — the control tick and
+/// the two interrupts — reach the same driver with [`SharedChain::with`].
+#[derive(Clone, Debug)]
+pub struct SharedChain(Rc<RefCell<ChainSpi<ChainHandle>>>);
+
+impl SharedChain {
+    pub fn new(driver: ChainSpi<ChainHandle>) -> SharedChain {
+        SharedChain(Rc::new(RefCell::new(driver)))
+    }
+
+    /// Run `f` on the driver.
+    pub fn with<R>(&self, f: impl FnOnce(&mut ChainSpi<ChainHandle>) -> R) -> R {
+        f(&mut self.0.borrow_mut())
+    }
+}
+
+impl ChainBus for SharedChain {
+    type Error = ChainSpiError;
+
+    fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), ChainSpiError> {
+        self.with(|d| d.window(tx, rx))
     }
 }

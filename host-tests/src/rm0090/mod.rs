@@ -8,6 +8,9 @@
 //!
 //! * [`chain_spi`] — SPI1 as the chain's master (§28), DMA2 streams 0/3
 //!   (§10), TIM7 (§20) and the CS line, with the simulated chips on MISO.
+//! * [`ioext`] — the I/O extension's port: SPI2 (§28), TIM1 (§17), DMA1
+//!   streams 3/4 and DMA2 streams 2/6 (§10), GPIOB's pins as levels (§8),
+//!   with 74HC165/74HC595 shift registers on them.
 //! * [`i2c`] — I2C1 in slave mode (§27), with [`i2c_rig`]: a simulated
 //!   master and the NVIC's order of the two I2C interrupts.
 //! * [`flash`] — the flash interface (§3): unlock keys, sector erase,
@@ -33,5 +36,6 @@ pub mod chain_spi;
 pub mod flash;
 pub mod i2c;
 pub mod i2c_rig;
+pub mod ioext;
 pub mod iwdg;
 pub mod usart;

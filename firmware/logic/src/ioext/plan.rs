@@ -15,8 +15,9 @@
 //!    throughout.
 //! 2. Unless [`TransferPlan::cs_low_before`], drive CS low. The first clock
 //!    edge must come at least [`TransferPlan::half_period_ns`] after CS fell
-//!    (the timer engine's first phase is exactly that; the SPI engine waits
-//!    before it writes the first frame).
+//!    (the timer engine's first phase, [`TimerSetup::ccr_sck`] ticks, lasts
+//!    at least that; the SPI engine waits before it writes the first
+//!    frame).
 //! 3. Run the engine:
 //!    * [`SpiSetup`] — SPI2 master, 8-bit frames, MSB first, software NSS,
 //!      CR1.BR = `br`, CPOL/CPHA = `mode`; `frames` bytes out of
@@ -109,7 +110,11 @@ pub struct TimerSetup {
     /// Bits − 1: the timer makes RCR + 1 clock periods, then stops.
     pub rcr: u8,
     /// CCR1: the leading SCK edge of each period (the first phase is the
-    /// idle level, `ccr_sck` ticks long).
+    /// idle level, `ccr_sck` ticks long). The first phase is also the CS
+    /// set-up, so it lasts at least [`TransferPlan::half_period_ns`]: the
+    /// fewest ticks that do (⌈period / 2⌉ for an odd period, one more than
+    /// half where half the period is not a whole number of ns), the second
+    /// phase the rest.
     pub ccr_sck: u16,
     /// CCR3: when MOSI takes its next bit (1 tick after the trailing edge
     /// for CPHA = 0, at the leading edge for CPHA = 1).
@@ -182,7 +187,19 @@ impl TransferPlan {
         };
         // period is 4..=65 536 (clock::timer_settings), so every value fits.
         let period = period.clamp(4, 65_536);
-        let first = period / 2;
+        // The first phase is the CS set-up: at least the half period the
+        // plan promises, in whole timer ticks (⌊period / 2⌋ was 1 107 ns at
+        // N = 22, where the promise is 1 111 ns), and at least ⌈period / 2⌉;
+        // at most period − 1, so the leading edge is inside the period.
+        let per_tick = 1_000_000_000u64.saturating_mul(u64::from(psc) + 1);
+        let promised = self
+            .half_period_ns()
+            .saturating_mul(u64::from(self.clock.period.hz))
+            .div_ceil(per_tick);
+        let promised = u32::try_from(promised).unwrap_or(u32::MAX);
+        let first = promised
+            .max(period.div_ceil(2))
+            .min(period.saturating_sub(1));
         let second = period.saturating_sub(first);
         let (ccr_mosi, ccr_sample) = if self.mode.cpha {
             (first, first.saturating_add(second / 2))
@@ -238,7 +255,7 @@ mod tests {
         clippy::unwrap_used,
         clippy::panic
     )]
-    use super::super::clock::{clock_plan, Clocks};
+    use super::super::clock::{clock_plan, Clocks, Engine};
     use super::*;
 
     fn plan(bits: u16, mode: SpiMode, n: u8) -> TransferPlan {
@@ -279,15 +296,67 @@ mod tests {
                 assert_eq!(p.spi(), None);
                 let t = p.timer().unwrap();
                 assert_eq!(u16::from(t.rcr) + 1, bits);
-                assert_eq!((t.psc, t.arr, t.ccr_sck), (0, 843, 422));
+                // 844 ticks = 5 023.8 ns: the promised half is 2 512 ns, 422
+                // ticks would be 2 511.9 ns.
+                assert_eq!((t.psc, t.arr, t.ccr_sck), (0, 843, 423));
                 if mode.cpha {
                     // MOSI at the leading edge, sample in the middle of the active phase.
-                    assert_eq!((t.ccr_mosi, t.ccr_sample), (422, 633));
+                    assert_eq!((t.ccr_mosi, t.ccr_sample), (423, 633));
                 } else {
                     // MOSI just after the trailing edge, sample mid idle phase.
                     assert_eq!((t.ccr_mosi, t.ccr_sample), (1, 211));
                 }
                 assert!(t.first_mosi);
+            }
+        }
+    }
+
+    #[test]
+    fn the_timer_engines_first_phase_lasts_at_least_the_promised_half_period() {
+        // N = 22: 373 ticks (2 220.2 ns), an odd period; the promise is
+        // 1 111 ns, ⌊373 / 2⌋ = 186 ticks would be 1 107.1 ns.
+        let p = plan(9, SpiMode::MODE0, 22);
+        assert_eq!(p.half_period_ns(), 1_111);
+        let t = p.timer().unwrap();
+        assert_eq!((t.arr, t.ccr_sck), (372, 187));
+        for clocks in [
+            Clocks::BOARD,
+            Clocks {
+                spi_hz: 16_000_000,
+                timer_hz: 16_000_000,
+            },
+            Clocks {
+                spi_hz: 1_000,
+                timer_hz: 3_000,
+            },
+            Clocks {
+                spi_hz: 42_000_000,
+                timer_hz: 100_000_001,
+            },
+        ] {
+            for n in 0..=255u8 {
+                for bits in [1u16, 9, 255] {
+                    let mut p = plan(bits, SpiMode::MODE1, n);
+                    p.clock = clock_plan(n, bits, clocks);
+                    let Some(t) = p.timer() else {
+                        continue;
+                    };
+                    let Engine::Timer { psc, period } = p.clock.engine else {
+                        panic!("a timer plan on the SPI engine")
+                    };
+                    // ccr_sck ticks of (PSC + 1) / f ≥ the promise, exactly.
+                    let first_ns_x_hz = u64::from(t.ccr_sck) * (u64::from(psc) + 1) * 1_000_000_000;
+                    assert!(
+                        first_ns_x_hz >= p.half_period_ns() * u64::from(clocks.timer_hz),
+                        "{clocks:?} N {n}: {} ticks",
+                        t.ccr_sck
+                    );
+                    assert!(u32::from(t.ccr_sck) >= period.div_ceil(2));
+                    assert!(u32::from(t.ccr_sck) < period, "the leading edge is inside");
+                    // The compare points stay in order inside the period.
+                    assert!(t.ccr_sample <= t.arr && t.ccr_mosi <= t.ccr_sck);
+                    assert!(t.ccr_sample > 0 && t.ccr_mosi > 0);
+                }
             }
         }
     }

@@ -1,0 +1,1554 @@
+//! RM0090 §28, §17, §10 and §8: SPI2 as the I/O extension's master, TIM1 as
+//! its bit engine, DMA1 streams 3/4 and DMA2 streams 2/6, GPIOB's four port
+//! pins as levels, and a chain of 74HC165s and 74HC595s on those pins
+//! ([`ShiftRegs`], this model's own bit-level one, wired as
+//! `stepbridge_sim::shift` documents), as `drivers_core::ioext_spi` sees
+//! them. Time runs in cycles of 168 MHz — the CPU's and TIM1's clock; SPI2's
+//! 42 MHz kernel clock is 4 of them — so every edge is exact; a register
+//! access takes [`ACCESS`] cycles, a DMA request is served [`DMA_LATENCY`]
+//! cycles after it rises.
+//!
+//! # Rules (RM0090 rev 19 section numbers)
+//!
+//! | # | rule | section |
+//! |---|---|---|
+//! | X1 | SPI2 shifts a frame only with SPE = 1, MSTR = 1 and SSM = SSI = 1 (software NSS held high, else MODF); the port needs 8-bit frames (DFF = 0), MSB first (LSBFIRST = 0), full duplex (BIDIMODE = RXONLY = 0) | §28.3.3 "Configuring the SPI in master mode", §28.5.1 |
+//! | X2 | SPI2's CPHA, CPOL, MSTR, BR, LSBFIRST, SSI, SSM, RXONLY, DFF and BIDIMODE change only while SPE = 0 ("should not be changed when communication is ongoing"; the model takes it as "while enabled") | §28.5.1 |
+//! | X3 | SCK = f_PCLK1 / 2^(BR+1). A frame starts when DR's byte moves to the shift register (TXE sets); CPHA = 0: MOSI takes the MSB at the start and the next bit at each trailing edge, MISO is sampled at the leading edges; CPHA = 1: MOSI changes at the leading edges, MISO is sampled at the trailing edges. The frame ends one period after its start edge: RXNE with the byte (OVR instead if RXNE is still set; a DR read followed by an SR read clears OVR); the next frame follows at once if DR holds one; BSY from the first load to the end of the last frame | §28.3.5, §28.3.7, §28.4.8, §28.5.3 (the edge positions inside a frame: UNCONFIRMED, from the timing diagrams as known) |
+//! | X4 | With TXDMAEN a TXE raises SPI2_TX's DMA request, with RXDMAEN an RXNE raises SPI2_RX's. Start order: RXDMAEN, then the streams, then TXDMAEN; a TX stream enabled while its request is already active sets its FEIF (UNCONFIRMED: the FIFO error RM0090 describes for direct mode memory-to-peripheral), and TXDMAEN before the TX stream is enabled is recorded | §28.3.9 "SPI communication using DMA" |
+//! | X5 | SPE cleared while BSY cuts a frame (the SPI disable procedure waits for BSY = 0 first); CS may rise only once BSY is clear | §28.3.8 "Disabling the SPI" |
+//! | X6 | A stream's PAR, M0AR, NDTR, FCR and configuration bits are written only while EN = 0; its flags are cleared (LIFCR/HIFCR, write 1) before EN is set; NDTR ≠ 0 at EN | §10.3.17 "Stream configuration procedure", §10.5.5–§10.5.10 |
+//! | X7 | Request mapping: DMA1 stream 3 channel 0 = SPI2_RX, stream 4 channel 0 = SPI2_TX; DMA2 stream 2 channel 6 = TIM1_CH2, stream 6 channel 6 = TIM1_CH3; a stream on another channel never sees the request. Streams other than these four are not the port's (DMA2 0/3 are the chain's) | §10.3.3, Tables 42 and 43 |
+//! | X8 | Directions, addresses, sizes: SPI2_RX/TX peripheral-to-memory / memory-to-peripheral at SPI2_DR in bytes; the samples peripheral-to-memory from GPIOB_IDR (half-words); the MOSI table memory-to-peripheral to GPIOB_BSRR in words (BSRR's reset half is its upper 16 bits); memory increment, no peripheral increment, not circular, direct mode with MSIZE = PSIZE ("in direct mode MSIZE is forced to PSIZE"); DMA1's peripheral port does not reach AHB1, so a DMA1 stream at GPIO is a bus error (TEIF, EN cleared); so is an address outside the port's buffers and registers | §10.3.6, §10.3.11, §10.5.5, §2.1 (bus matrix) |
+//! | X9 | Each item counts NDTR down; HTIF at half, TCIF and EN = 0 at 0; TEIF disables the stream; TCIE/TEIE/DMEIE/HTIE (SxCR) and FEIE (SxFCR) gate the stream's interrupt line (`DMA1_STREAM3`, `DMA2_STREAM2`) | §10.3.6, §10.3.18, §10.5.1–§10.5.5 |
+//! | X10 | TIM1 counts at f / (PSC + 1) from CNT while CEN = 1; PSC and RCR are preloaded (in effect at UG or an update event); CNT overflows after ARR; at an overflow the update event comes when the repetition counter is 0 (then reloaded from RCR; otherwise it counts down), so RCR = n − 1 makes n periods; UG resets CNT and loads the preloads; one-pulse mode clears CEN at the update event | §17.3.1–§17.3.3 "Repetition counter", §17.3.15 "One-pulse mode" |
+//! | X11 | TIM1 CH1: OC1REF per OC1M (frozen: kept; forced inactive: low; PWM mode 2: low while CNT < CCR1, else high); CH1N drives the pin (AF1) with OC1REF xor CC1NP when MOE = 1, CC1NE = 1 and CC1E = 0 (no dead time), and not at all otherwise; CNT = CCR2 / CCR3 raise TIM1_CH2 / TIM1_CH3 with CC2DE / CC3DE, a request the stream must be ready for (enabled, and served before the next one); PSC, ARR, RCR, CCRx, CCMRx and CCER are not written while CEN = 1 | §17.3.6, §17.3.10 "PWM mode", §17.3.11 "Complementary outputs", §17.4.3–§17.4.18 |
+//! | X12 | GPIOB: MODER, PUPDR and AFRH fields of every pin but PB13–PB15 stay as they are (PB11 stays CS, a push-pull output), and are written only inside the driver's critical section (other drivers' pins share the registers); BSRR writes touch only CS (PB11) and MOSI (PB15); a set bit wins over its reset bit; IDR reads every pin's level in input and alternate-function mode | §8.3.1, §8.3.7, §8.4.1–§8.4.10 |
+//! | X13 | The wire (Copley's note, `bridge_logic::ioext::wire`): CS and SCK never change at the same instant; SPI2 or TIM1 never clock SCK while CS is high (SCK only moves to a new CPOL there); CS rises with SCK at the level it had when CS fell (a transfer ends at CPOL) | not RM0090 |
+//!
+//! The tests compare each CS window with the plan (`bits` leading and
+//! trailing edges, the first edge at least the plan's half period after CS
+//! fell, CS at least that after the last edge, no period shorter than the
+//! plan's) and the bits with what the logic expects.
+//!
+//! # Modelling choices (UNCONFIRMED)
+//!
+//! * A DMA request is served [`DMA_LATENCY`] cycles after it rises (no
+//!   arbitration between streams; RM0090 gives no number).
+//! * A pin that nothing drives (input, or an alternate function whose
+//!   peripheral is off) follows its pull-up/down, or keeps its level
+//!   without one; CS has its external pull-up. SPI2's MOSI keeps its last
+//!   bit between frames.
+//! * The timer starts counting at the CEN write; NVIC pending bits are not
+//!   modelled (an interrupt line is a level).
+//! * A stream never falls behind by itself (no FIFO overrun or underrun):
+//!   FEIF, TEIF and DMEIF come from the tests ([`IoModel::fail_next`]; an
+//!   injected FEIF still moves its item, RM0090 §10.3.18 "no data loss"),
+//!   and FEIF from a transmit stream enabled while its request is active
+//!   (X4). A stuck stream is [`IoModel::stall`].
+//! * The chips: one '165 and one '595 a chip, no propagation delays; the
+//!   tests use 32 of each so every one of 256 bits reaches one.
+
+use std::cell::{Ref, RefCell, RefMut};
+use std::rc::Rc;
+
+use drivers_core::dma::bits::*;
+use drivers_core::dma::{DmaReg, Flags};
+use drivers_core::ioext_spi::bits::*;
+use drivers_core::ioext_spi::{GpioReg, IoExtBuffers, IoExtHw, IoReg, Pins, Target, TimReg, MAX};
+use drivers_core::spi::bits::*;
+use drivers_core::spi::SpiReg;
+use drivers_core::Regs;
+
+/// The CPU's and TIM1's clock; every time in the model is in its cycles.
+pub const CLOCK_HZ: u64 = 168_000_000;
+/// SPI2's kernel clock (APB1), 4 model cycles a tick.
+pub const PCLK1_HZ: u64 = 42_000_000;
+const SPI_TICK: u64 = CLOCK_HZ / PCLK1_HZ;
+/// One register access.
+pub const ACCESS: u64 = 4;
+/// From a DMA request to its item moved.
+pub const DMA_LATENCY: u64 = 6;
+/// The board's pins (`board.rs`): CS PB11, SCK PB13, MISO PB14, MOSI PB15.
+pub const PINS: Pins = Pins {
+    cs: 11,
+    sck: 13,
+    miso: 14,
+    mosi: 15,
+};
+/// Bus addresses the model gives the buffers, and the registers' (RM0090
+/// §2.3: SPI2 at 0x4000_3800, GPIOB at 0x4002_0400).
+pub const TX_BYTES: u32 = 0x2000_0000;
+pub const RX_BYTES: u32 = 0x2000_0100;
+pub const MOSI_TABLE: u32 = 0x2000_1000;
+pub const SAMPLES: u32 = 0x2000_2000;
+pub const SPI2_DR: u32 = 0x4000_380C;
+pub const GPIOB_IDR: u32 = 0x4002_0410;
+pub const GPIOB_BSRR: u32 = 0x4002_0418;
+
+/// Cycles for `ns` (rounded up).
+pub fn cycles_of_ns(ns: u64) -> u64 {
+    (ns * CLOCK_HZ).div_ceil(1_000_000_000)
+}
+
+// ------------------------------------------------------------ the chips --
+
+/// `n165` 74HC165s and `n595` 74HC595s on SCK, MOSI, MISO and CS, wired as
+/// `stepbridge_sim::shift` documents (CS → RCLK of every '595; CS →
+/// inverter → SH/LD of every '165; '165 #0's QH is MISO, '595 #0's SER is
+/// MOSI). Written here from the datasheets, not shared with the logic's
+/// simulator: SH/LD low (CS high) loads the '165s from their inputs, as
+/// long as it lasts; a rising SCK edge shifts the '165s towards QH while
+/// CS is low and the '595s always; a rising CS edge latches the '595s'
+/// outputs. Every part sees the levels before an edge.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct ShiftRegs {
+    n165: usize,
+    n595: usize,
+    /// Bit x = input A + x.
+    inputs: Vec<u8>,
+    /// Bit x = stage A + x; QH = bit 7.
+    sr165: Vec<u8>,
+    /// Bit x = stage QA + x.
+    sr595: Vec<u8>,
+    out595: Vec<u8>,
+    cs: bool,
+}
+
+impl ShiftRegs {
+    pub fn new(n165: usize, n595: usize) -> ShiftRegs {
+        ShiftRegs {
+            n165,
+            n595,
+            inputs: vec![0; n165],
+            sr165: vec![0; n165],
+            sr595: vec![0; n595],
+            out595: vec![0; n595],
+            cs: true,
+        }
+    }
+
+    /// The input receive bit `i` reads: input H − i % 8 of '165 #i / 8.
+    pub fn set_rx_bit(&mut self, i: usize, level: bool) {
+        if let Some(b) = self.inputs.get_mut(i / 8) {
+            let m = 0x80 >> (i % 8);
+            if level {
+                *b |= m;
+            } else {
+                *b &= !m;
+            }
+        }
+        if self.cs {
+            self.sr165.clone_from(&self.inputs);
+        }
+    }
+
+    /// Latched output stage `s` (= 8·chip + pin, QA = pin 0).
+    pub fn stage(&self, s: usize) -> bool {
+        self.out595
+            .get(s / 8)
+            .is_some_and(|b| b & (1 << (s % 8)) != 0)
+    }
+
+    /// The output that shows transmit bit `i` after an `n`-bit transfer:
+    /// stage n − 1 − i.
+    pub fn tx_bit_output(&self, n: usize, i: usize) -> bool {
+        n.checked_sub(1 + i).is_some_and(|s| self.stage(s))
+    }
+
+    pub fn stages(&self) -> usize {
+        8 * self.n595
+    }
+
+    /// MISO: '165 #0's QH (ground without a '165).
+    pub fn miso(&self) -> bool {
+        self.sr165.first().is_some_and(|b| b & 0x80 != 0)
+    }
+
+    fn cs_edge(&mut self, high: bool) {
+        self.cs = high;
+        if high {
+            self.out595.clone_from(&self.sr595);
+            self.sr165.clone_from(&self.inputs);
+        }
+    }
+
+    fn sck_rise(&mut self, mosi: bool) {
+        if !self.cs {
+            for k in 0..self.n165 {
+                let ser = self.sr165.get(k + 1).is_some_and(|b| b & 0x80 != 0);
+                self.sr165[k] = (self.sr165[k] << 1) | u8::from(ser);
+            }
+        }
+        let mut ser = mosi;
+        for k in 0..self.n595 {
+            let qh = self.sr595[k] & 0x80 != 0;
+            self.sr595[k] = (self.sr595[k] << 1) | u8::from(ser);
+            ser = qh;
+        }
+    }
+}
+
+// ------------------------------------------------------------- the wire --
+
+/// One CS-low window as the chips saw it (times in cycles).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct CsWindow {
+    pub fell: u64,
+    pub rose: Option<u64>,
+    /// SCK's level when CS fell.
+    pub idle: bool,
+    /// When the engine started inside this window (TIM1's CEN, SPI2's
+    /// first frame), if it did after CS fell.
+    pub engine_start: Option<u64>,
+    /// Every SCK edge inside the window (alternately leading and
+    /// trailing, from the idle level).
+    pub edges: Vec<u64>,
+}
+
+// ------------------------------------------------------------ the model --
+
+#[derive(Clone, Copy, Debug, Default)]
+struct Stream {
+    cr: u32,
+    ndtr: u32,
+    par: u32,
+    m0ar: u32,
+    fcr: u32,
+    /// Items moved since EN, and NDTR at EN.
+    moved: u32,
+    start: u32,
+    /// A request waits to be served at this time.
+    pending: Option<u64>,
+    fail_next: Option<Flags>,
+    stalled: bool,
+}
+
+#[derive(Clone, Debug)]
+struct Dma {
+    streams: [Stream; 8],
+    /// LISR and HISR.
+    isr: [u32; 2],
+}
+
+impl Dma {
+    fn new() -> Dma {
+        Dma {
+            streams: [Stream {
+                fcr: DMA_FCR_RESET,
+                ..Stream::default()
+            }; 8],
+            isr: [0; 2],
+        }
+    }
+
+    fn flags(&self, s: u8) -> Flags {
+        Flags::of(self.isr[usize::from(s / 4)], s)
+    }
+
+    fn raise(&mut self, s: u8, f: Flags) {
+        self.isr[usize::from(s / 4)] |= f.at(s);
+    }
+
+    fn line(&self, s: u8) -> bool {
+        let st = &self.streams[usize::from(s)];
+        let f = self.flags(s);
+        (st.cr & DMA_CR_TCIE != 0 && f.intersects(Flags::TCIF))
+            || (st.cr & DMA_CR_TEIE != 0 && f.intersects(Flags::TEIF))
+            || (st.cr & DMA_CR_DMEIE != 0 && f.intersects(Flags::DMEIF))
+            || (st.cr & DMA_CR_HTIE != 0 && f.intersects(Flags::HTIF))
+            || (st.fcr & DMA_FCR_FEIE != 0 && f.intersects(Flags::FEIF))
+    }
+}
+
+/// Which request a stream of the port serves (X7, X8).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Request {
+    SpiRx,
+    SpiTx,
+    TimCh2,
+    TimCh3,
+}
+
+impl Request {
+    /// (controller, stream, channel, peripheral-to-memory, PAR, PSIZE codes allowed)
+    fn of(ctl: u8, stream: u8) -> Option<Request> {
+        match (ctl, stream) {
+            (1, 3) => Some(Request::SpiRx),
+            (1, 4) => Some(Request::SpiTx),
+            (2, 2) => Some(Request::TimCh2),
+            (2, 6) => Some(Request::TimCh3),
+            _ => None,
+        }
+    }
+
+    fn channel(self) -> u32 {
+        match self {
+            Request::SpiRx | Request::SpiTx => 0,
+            Request::TimCh2 | Request::TimCh3 => 6,
+        }
+    }
+
+    fn p2m(self) -> bool {
+        matches!(self, Request::SpiRx | Request::TimCh2)
+    }
+
+    fn name(self) -> &'static str {
+        match self {
+            Request::SpiRx => "SPI2_RX",
+            Request::SpiTx => "SPI2_TX",
+            Request::TimCh2 => "TIM1_CH2",
+            Request::TimCh3 => "TIM1_CH3",
+        }
+    }
+}
+
+/// A frame on SPI2's wire.
+#[derive(Clone, Copy, Debug)]
+struct Frame {
+    out: u8,
+    got: u8,
+    /// Half periods done, 0..16, and when the next one ends.
+    step: u8,
+    next: u64,
+    half: u64,
+}
+
+/// SPI2, TIM1, DMA1/DMA2, GPIOB and the chips (module docs).
+pub struct IoModel {
+    now: u64,
+    // SPI2
+    spi_cr1: u32,
+    spi_cr2: u32,
+    rxne: bool,
+    rx_buf: u8,
+    ovr: bool,
+    modf: bool,
+    dr_read: bool,
+    tx_buf: Option<u8>,
+    frame: Option<Frame>,
+    spi_sck: bool,
+    spi_mosi: bool,
+    // DMA
+    dma: [Dma; 2],
+    // TIM1
+    tim_cr1: u32,
+    tim_dier: u32,
+    tim_sr: u32,
+    tim_ccmr1: u32,
+    tim_ccmr2: u32,
+    tim_ccer: u32,
+    tim_bdtr: u32,
+    tim_psc: u32,
+    tim_psc_live: u32,
+    tim_arr: u32,
+    tim_rcr: u32,
+    tim_rep: u32,
+    tim_ccr: [u32; 3],
+    tim_cnt: u32,
+    /// While counting: when CNT took its value.
+    tim_at: u64,
+    oc1ref: bool,
+    // GPIOB
+    moder: u32,
+    pupdr: u32,
+    afrh: u32,
+    odr: u32,
+    masked: u32,
+    // pins and chips
+    cs: bool,
+    sck: bool,
+    mosi: bool,
+    pub chips: ShiftRegs,
+    pub mem: IoExtBuffers,
+    windows: Vec<CsWindow>,
+    stray_edges: u32,
+    violations: Vec<String>,
+}
+
+impl std::fmt::Debug for IoModel {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("IoModel")
+            .field("now", &self.now)
+            .field("spi_cr1", &format_args!("{:#06x}", self.spi_cr1))
+            .field("spi_cr2", &format_args!("{:#06x}", self.spi_cr2))
+            .field("tim_cr1", &format_args!("{:#06x}", self.tim_cr1))
+            .field("cs", &self.cs)
+            .field("sck", &self.sck)
+            .field("violations", &self.violations)
+            .finish()
+    }
+}
+
+const OUR_PINS: [u8; 3] = [13, 14, 15];
+
+fn field(reg: u32, pin: u8, width: u32) -> u32 {
+    (reg >> (u32::from(pin) * width)) & ((1 << width) - 1)
+}
+
+impl IoModel {
+    /// Reset state as `board::configure` leaves GPIOB (CS an output, high;
+    /// SCK and MOSI floating inputs; MISO an input with a pull-up), the
+    /// chips behind the pins.
+    pub fn new(chips: ShiftRegs) -> IoModel {
+        let mut m = IoModel {
+            now: 0,
+            spi_cr1: 0,
+            spi_cr2: 0,
+            rxne: false,
+            rx_buf: 0,
+            ovr: false,
+            modf: false,
+            dr_read: false,
+            tx_buf: None,
+            frame: None,
+            spi_sck: false,
+            spi_mosi: false,
+            dma: [Dma::new(), Dma::new()],
+            tim_cr1: 0,
+            tim_dier: 0,
+            tim_sr: 0,
+            tim_ccmr1: 0,
+            tim_ccmr2: 0,
+            tim_ccer: 0,
+            tim_bdtr: 0,
+            tim_psc: 0,
+            tim_psc_live: 0,
+            tim_arr: 0xFFFF,
+            tim_rcr: 0,
+            tim_rep: 0,
+            tim_ccr: [0; 3],
+            tim_cnt: 0,
+            tim_at: 0,
+            oc1ref: false,
+            moder: GPIO_MODE_OUTPUT << 22,
+            pupdr: GPIO_PULL_UP << 28,
+            afrh: 0,
+            odr: 1 << 11,
+            masked: 0,
+            cs: true,
+            sck: false,
+            mosi: false,
+            chips,
+            mem: IoExtBuffers::new(),
+            windows: Vec::new(),
+            stray_edges: 0,
+            violations: Vec::new(),
+        };
+        m.update_pins();
+        m
+    }
+
+    pub fn now(&self) -> u64 {
+        self.now
+    }
+
+    pub fn now_ns(&self) -> u64 {
+        self.now * 1_000_000_000 / CLOCK_HZ
+    }
+
+    pub fn violations(&self) -> &[String] {
+        &self.violations
+    }
+
+    pub fn windows(&self) -> &[CsWindow] {
+        &self.windows
+    }
+
+    /// SCK edges while CS was high (a CPOL change between transfers makes
+    /// one).
+    pub fn stray_edges(&self) -> u32 {
+        self.stray_edges
+    }
+
+    pub fn cs_high(&self) -> bool {
+        self.cs
+    }
+
+    pub fn sck(&self) -> bool {
+        self.sck
+    }
+
+    pub fn spi_cr1(&self) -> u32 {
+        self.spi_cr1
+    }
+
+    pub fn spi_cr2(&self) -> u32 {
+        self.spi_cr2
+    }
+
+    pub fn tim_cr1(&self) -> u32 {
+        self.tim_cr1
+    }
+
+    pub fn tim_dier(&self) -> u32 {
+        self.tim_dier
+    }
+
+    pub fn moder(&self) -> u32 {
+        self.moder
+    }
+
+    /// Stream `stream`'s CR on DMA`ctl` (1 or 2).
+    pub fn stream_cr(&self, ctl: u8, stream: u8) -> u32 {
+        self.dma[usize::from(ctl - 1)].streams[usize::from(stream)].cr
+    }
+
+    /// Stream `stream`'s PAR on DMA`ctl`.
+    pub fn stream_par(&self, ctl: u8, stream: u8) -> u32 {
+        self.dma[usize::from(ctl - 1)].streams[usize::from(stream)].par
+    }
+
+    /// Stream `stream`'s flags on DMA`ctl`.
+    pub fn stream_flags(&self, ctl: u8, stream: u8) -> Flags {
+        self.dma[usize::from(ctl - 1)].flags(stream)
+    }
+
+    /// Raise `flags` on the next item of the stream instead of moving it
+    /// (TEIF also disables it); FEIF moves the item all the same (RM0090
+    /// §10.3.18: no data lost).
+    pub fn fail_next(&mut self, ctl: u8, stream: u8, flags: Flags) {
+        self.dma[usize::from(ctl - 1)].streams[usize::from(stream)].fail_next = Some(flags);
+    }
+
+    /// Set `flags` on the stream (a flag left over from the last transfer).
+    pub fn raise(&mut self, ctl: u8, stream: u8, flags: Flags) {
+        self.dma[usize::from(ctl - 1)].raise(stream, flags);
+    }
+
+    /// The stream's requests are never served (a stuck DMA): for the
+    /// timeout tests.
+    pub fn stall(&mut self, ctl: u8, stream: u8, stalled: bool) {
+        self.dma[usize::from(ctl - 1)].streams[usize::from(stream)].stalled = stalled;
+    }
+
+    /// `DMA1_STREAM3`'s line (the SPI engine's end).
+    pub fn irq_spi(&self) -> bool {
+        self.dma[0].line(3)
+    }
+
+    /// `DMA2_STREAM2`'s line (the bit engine's end).
+    pub fn irq_timer(&self) -> bool {
+        self.dma[1].line(2)
+    }
+
+    /// Some other stream's interrupt line (none is enabled by the port).
+    pub fn irq_other(&self) -> bool {
+        self.dma[0].line(4) || self.dma[1].line(6)
+    }
+
+    fn violate(&mut self, what: impl Into<String>) {
+        let what = what.into();
+        self.violations
+            .push(format!("{what} (at {} ns)", self.now_ns()));
+    }
+
+    // ------------------------------------------------------------ time --
+
+    fn tim_tick(&self) -> u64 {
+        u64::from(self.tim_psc_live) + 1
+    }
+
+    fn tim_running(&self) -> bool {
+        self.tim_cr1 & TIM_CR1_CEN != 0
+    }
+
+    /// The next CNT value that is an event (a compare or the overflow, as
+    /// ARR + 1), and when CNT reaches it.
+    fn tim_next(&self) -> Option<(u32, u64)> {
+        if !self.tim_running() {
+            return None;
+        }
+        // A CNT above ARR (never written by the driver) counts on to the
+        // overflow all the same.
+        let mut v = (self.tim_arr + 1).max(self.tim_cnt + 1);
+        for &c in &self.tim_ccr {
+            if c > self.tim_cnt && c <= self.tim_arr {
+                v = v.min(c);
+            }
+        }
+        Some((
+            v,
+            self.tim_at + u64::from(v - self.tim_cnt) * self.tim_tick(),
+        ))
+    }
+
+    fn dma_next(&self) -> Option<u64> {
+        self.dma
+            .iter()
+            .flat_map(|d| d.streams.iter().filter_map(|s| s.pending))
+            .min()
+    }
+
+    /// When the next event is due.
+    pub fn next_event(&self) -> Option<u64> {
+        [
+            self.frame.map(|f| f.next),
+            self.tim_next().map(|(_, t)| t),
+            self.dma_next(),
+        ]
+        .into_iter()
+        .flatten()
+        .min()
+    }
+
+    /// Let time run to `t`, with every event on the way.
+    pub fn advance_to(&mut self, t: u64) {
+        while let Some(next) = self.next_event().filter(|&n| n <= t) {
+            self.now = self.now.max(next);
+            if self.frame.is_some_and(|f| f.next <= self.now) {
+                self.spi_step();
+            }
+            if let Some((v, at)) = self.tim_next() {
+                if at <= self.now {
+                    self.tim_event(v);
+                }
+            }
+            self.dma_service();
+        }
+        self.now = self.now.max(t);
+    }
+
+    fn tick_access(&mut self) {
+        let t = self.now + ACCESS;
+        self.advance_to(t);
+    }
+
+    // ------------------------------------------------------------- SPI2 --
+
+    fn spi_enabled(&self) -> bool {
+        self.spi_cr1 & SPI_CR1_SPE != 0
+    }
+
+    fn cpol(&self) -> bool {
+        self.spi_cr1 & SPI_CR1_CPOL != 0
+    }
+
+    fn spi_cr1_write(&mut self, value: u32) {
+        let value = value & 0xFFFF;
+        let config = !SPI_CR1_SPE & 0xFFFF;
+        if self.spi_enabled() && (value ^ self.spi_cr1) & config != 0 {
+            self.violate(format!(
+                "X2: SPI2 CR1 {:#06x} -> {value:#06x} while SPE = 1",
+                self.spi_cr1
+            ));
+        }
+        if self.spi_enabled() && value & SPI_CR1_SPE == 0 && self.busy() {
+            self.violate("X5: SPE cleared while SPI2 is busy: a frame cut");
+            self.frame = None;
+            self.tx_buf = None;
+        }
+        self.spi_cr1 = value;
+        if !self.spi_enabled() {
+            self.frame = None;
+        } else if self.frame.is_none() {
+            self.spi_sck = self.cpol();
+            if self.tx_buf.is_some() {
+                self.start_frame();
+            }
+        }
+    }
+
+    fn busy(&self) -> bool {
+        self.frame.is_some() || self.tx_buf.is_some()
+    }
+
+    fn spi_sr(&mut self) -> u32 {
+        let v = (u32::from(self.rxne) * SPI_SR_RXNE)
+            | (u32::from(self.tx_buf.is_none()) * SPI_SR_TXE)
+            | (u32::from(self.modf) * SPI_SR_MODF)
+            | (u32::from(self.ovr) * SPI_SR_OVR)
+            | (u32::from(self.busy()) * SPI_SR_BSY);
+        if self.dr_read {
+            self.ovr = false;
+            self.dr_read = false;
+        }
+        v
+    }
+
+    fn dr_write(&mut self, byte: u8) {
+        if !self.spi_enabled() {
+            self.violate("X1: SPI2 DR written with SPE = 0");
+            return;
+        }
+        if self.tx_buf.is_some() {
+            self.violate("X3: SPI2 DR written while TXE = 0: a byte lost");
+        }
+        self.tx_buf = Some(byte);
+        if self.frame.is_none() {
+            self.start_frame();
+        }
+    }
+
+    /// X1, X3: DR's byte goes on the wire.
+    fn start_frame(&mut self) {
+        let Some(out) = self.tx_buf.take() else {
+            return;
+        };
+        let cr1 = self.spi_cr1;
+        if cr1 & SPI_CR1_MSTR == 0 || cr1 & (SPI_CR1_SSM | SPI_CR1_SSI) != SPI_CR1_SSM | SPI_CR1_SSI
+        {
+            self.modf = true;
+            self.violate(format!(
+                "X1: SPI2 frame with CR1 = {cr1:#06x}: not a master with NSS held high"
+            ));
+        }
+        if cr1 & (SPI_CR1_DFF | SPI_CR1_LSBFIRST | SPI_CR1_BIDIMODE | SPI_CR1_RXONLY) != 0 {
+            self.violate(format!(
+                "X1: SPI2 frame with CR1 = {cr1:#06x}: not 8-bit, MSB first, full duplex"
+            ));
+        }
+        let br = (cr1 & SPI_CR1_BR_MASK) >> SPI_CR1_BR_SHIFT;
+        let half = (2u64 << br) * SPI_TICK / 2;
+        let cpha = cr1 & SPI_CR1_CPHA != 0;
+        let cpol = self.cpol();
+        self.frame = Some(Frame {
+            out,
+            got: 0,
+            step: 0,
+            next: self.now + half,
+            half,
+        });
+        self.engine_started();
+        self.spi_mosi = out & 0x80 != 0;
+        if cpha {
+            // The first leading edge comes with the load.
+            self.spi_sck = !cpol;
+        }
+        self.update_pins();
+        self.spi_requests();
+    }
+
+    /// X3: the next half period of the frame ends.
+    fn spi_step(&mut self) {
+        let Some(mut f) = self.frame else {
+            return;
+        };
+        f.step += 1;
+        let cpha = self.spi_cr1 & SPI_CR1_CPHA != 0;
+        let cpol = self.cpol();
+        let k = f.step;
+        if k == 16 {
+            // The frame is over.
+            if !cpha {
+                self.spi_sck = cpol;
+            }
+            self.frame = None;
+            if self.rxne {
+                self.ovr = true;
+            } else {
+                self.rx_buf = f.got;
+                self.rxne = true;
+            }
+            self.update_pins();
+            if self.tx_buf.is_some() {
+                self.start_frame();
+            }
+            self.spi_requests();
+            return;
+        }
+        let bit = usize::from(k / 2);
+        // Odd steps end the first half of a bit: CPHA 0 leading (sample),
+        // CPHA 1 trailing (sample); even steps start the next bit.
+        if k % 2 == 1 {
+            f.got = (f.got << 1) | u8::from(self.chips_miso());
+            self.spi_sck = if cpha { cpol } else { !cpol };
+        } else {
+            self.spi_sck = if cpha { !cpol } else { cpol };
+            self.spi_mosi = f.out & (0x80 >> bit) != 0;
+        }
+        f.next += f.half;
+        self.frame = Some(f);
+        self.update_pins();
+    }
+
+    /// An engine starts: noted in the open CS window.
+    fn engine_started(&mut self) {
+        let now = self.now;
+        if let Some(w) = self.windows.last_mut().filter(|w| w.rose.is_none()) {
+            w.engine_start.get_or_insert(now);
+        }
+    }
+
+    fn chips_miso(&self) -> bool {
+        self.chips.miso()
+    }
+
+    // ------------------------------------------------------------- TIM1 --
+
+    fn tim_sync(&mut self) {
+        if self.tim_running() {
+            let ticks = (self.now - self.tim_at) / self.tim_tick();
+            let period = u64::from(self.tim_arr) + 1;
+            let cnt = (u64::from(self.tim_cnt) + ticks) % period;
+            self.tim_at += ticks * self.tim_tick();
+            self.tim_cnt = cnt as u32;
+        }
+    }
+
+    fn oc1m(&self) -> u32 {
+        (self.tim_ccmr1 & TIM_CCMR1_OC1M_MASK) >> TIM_CCMR1_OC1M_SHIFT
+    }
+
+    /// X11: OC1REF from the mode and the counter.
+    fn eval_oc1ref(&mut self) {
+        self.oc1ref = match self.oc1m() {
+            0b100 => false,
+            0b101 => true,
+            0b110 => self.tim_cnt < self.tim_ccr[0],
+            0b111 => self.tim_cnt >= self.tim_ccr[0],
+            _ => self.oc1ref,
+        };
+    }
+
+    /// X10, X11: CNT reached `v` (ARR + 1: the overflow).
+    fn tim_event(&mut self, v: u32) {
+        if let Some((_, at)) = self.tim_next() {
+            self.tim_at = at;
+        }
+        if v > self.tim_arr {
+            self.tim_cnt = 0;
+            if self.tim_rep == 0 {
+                // The update event.
+                self.tim_sr |= 1;
+                self.tim_rep = self.tim_rcr;
+                self.tim_psc_live = self.tim_psc;
+                if self.tim_cr1 & TIM_CR1_OPM != 0 {
+                    self.tim_cr1 &= !TIM_CR1_CEN;
+                }
+            } else {
+                self.tim_rep -= 1;
+            }
+        } else {
+            self.tim_cnt = v;
+        }
+        self.eval_oc1ref();
+        let cnt = self.tim_cnt;
+        for (ch, (de, req)) in [
+            (TIM_DIER_CC2DE, Request::TimCh2),
+            (TIM_DIER_CC3DE, Request::TimCh3),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            if self.tim_ccr[ch + 1] == cnt && (v <= self.tim_arr || cnt == 0) {
+                self.tim_sr |= 1 << (ch + 2);
+                if self.tim_dier & de != 0 {
+                    self.timer_request(req);
+                }
+            }
+        }
+        self.update_pins();
+    }
+
+    fn timer_request(&mut self, req: Request) {
+        let (ctl, s) = match req {
+            Request::TimCh2 => (1, 2),
+            _ => (1, 6),
+        };
+        let st = self.dma[ctl].streams[s];
+        let ok = st.cr & DMA_CR_EN != 0
+            && (st.cr & DMA_CR_CHSEL_MASK) >> DMA_CR_CHSEL_SHIFT == req.channel();
+        // A stream that stopped itself on a bus error loses the rest: that
+        // is the error's effect, which the driver reports, not a new one.
+        let faulted = self.dma[ctl].flags(s as u8).intersects(Flags::TEIF);
+        if !ok && faulted {
+            return;
+        }
+        if !ok {
+            self.violate(format!(
+                "X11: {} request with DMA2 stream {s} not ready for it: lost",
+                req.name()
+            ));
+            return;
+        }
+        if st.pending.is_some() {
+            self.violate(format!(
+                "X11: {} request while the last one is still pending: lost",
+                req.name()
+            ));
+            return;
+        }
+        if !st.stalled {
+            self.dma[ctl].streams[s].pending = Some(self.now + DMA_LATENCY);
+        }
+    }
+
+    fn tim_write(&mut self, reg: TimReg, value: u32) {
+        self.tim_sync();
+        let period_reg = matches!(
+            reg,
+            TimReg::Psc
+                | TimReg::Arr
+                | TimReg::Rcr
+                | TimReg::Ccr1
+                | TimReg::Ccr2
+                | TimReg::Ccr3
+                | TimReg::Ccmr1
+                | TimReg::Ccmr2
+                | TimReg::Ccer
+        );
+        // The mode change that starts or ends a transfer is allowed: OC1M
+        // to PWM 2 before CEN, to forced inactive in a stop.
+        if period_reg && self.tim_running() && reg != TimReg::Ccmr1 {
+            self.violate(format!("X11: TIM1 {reg:?} written while CEN = 1"));
+        }
+        match reg {
+            TimReg::Cr1 => {
+                let was = self.tim_running();
+                self.tim_cr1 = value & 0x3FF;
+                if !was && self.tim_running() {
+                    self.tim_at = self.now;
+                    self.engine_started();
+                }
+            }
+            TimReg::Dier => self.tim_dier = value & 0x7FFF,
+            TimReg::Sr => self.tim_sr &= value,
+            TimReg::Egr => {
+                if value & TIM_EGR_UG != 0 {
+                    self.tim_cnt = 0;
+                    self.tim_at = self.now;
+                    self.tim_psc_live = self.tim_psc;
+                    self.tim_rep = self.tim_rcr;
+                    self.tim_sr |= 1;
+                }
+            }
+            TimReg::Ccmr1 => self.tim_ccmr1 = value,
+            TimReg::Ccmr2 => self.tim_ccmr2 = value,
+            TimReg::Ccer => self.tim_ccer = value,
+            TimReg::Cnt => self.tim_cnt = value & 0xFFFF,
+            TimReg::Psc => self.tim_psc = value & 0xFFFF,
+            TimReg::Arr => self.tim_arr = value & 0xFFFF,
+            TimReg::Rcr => self.tim_rcr = value & 0xFF,
+            TimReg::Ccr1 => self.tim_ccr[0] = value & 0xFFFF,
+            TimReg::Ccr2 => self.tim_ccr[1] = value & 0xFFFF,
+            TimReg::Ccr3 => self.tim_ccr[2] = value & 0xFFFF,
+            TimReg::Bdtr => self.tim_bdtr = value,
+        }
+        self.eval_oc1ref();
+    }
+
+    fn tim_read(&mut self, reg: TimReg) -> u32 {
+        self.tim_sync();
+        match reg {
+            TimReg::Cr1 => self.tim_cr1,
+            TimReg::Dier => self.tim_dier,
+            TimReg::Sr => self.tim_sr,
+            TimReg::Egr => 0,
+            TimReg::Ccmr1 => self.tim_ccmr1,
+            TimReg::Ccmr2 => self.tim_ccmr2,
+            TimReg::Ccer => self.tim_ccer,
+            TimReg::Cnt => self.tim_cnt,
+            TimReg::Psc => self.tim_psc,
+            TimReg::Arr => self.tim_arr,
+            TimReg::Rcr => self.tim_rcr,
+            TimReg::Ccr1 => self.tim_ccr[0],
+            TimReg::Ccr2 => self.tim_ccr[1],
+            TimReg::Ccr3 => self.tim_ccr[2],
+            TimReg::Bdtr => self.tim_bdtr,
+        }
+    }
+
+    /// X11: CH1N's level, if it drives the pin.
+    fn oc1n(&self) -> Option<bool> {
+        let drives = self.tim_bdtr & TIM_BDTR_MOE != 0
+            && self.tim_ccer & TIM_CCER_CC1NE != 0
+            && self.tim_ccer & TIM_CCER_CC1E == 0;
+        drives.then_some(self.oc1ref ^ (self.tim_ccer & TIM_CCER_CC1NP != 0))
+    }
+
+    // -------------------------------------------------------------- DMA --
+
+    /// X4: SPI2's level requests, scheduled on their streams.
+    fn spi_requests(&mut self) {
+        let rx = self.rxne && self.spi_cr2 & SPI_CR2_RXDMAEN != 0;
+        let tx = self.tx_buf.is_none() && self.spi_cr2 & SPI_CR2_TXDMAEN != 0 && self.spi_enabled();
+        for (active, s) in [(rx, 3usize), (tx, 4)] {
+            let st = &mut self.dma[0].streams[s];
+            let ready = st.cr & DMA_CR_EN != 0
+                && (st.cr & DMA_CR_CHSEL_MASK) >> DMA_CR_CHSEL_SHIFT == 0
+                && !st.stalled;
+            if active && ready && st.pending.is_none() {
+                st.pending = Some(self.now + DMA_LATENCY);
+            }
+        }
+    }
+
+    /// X8, X9: serve every request that is due.
+    fn dma_service(&mut self) {
+        for ctl in 0..2u8 {
+            for s in 0..8u8 {
+                let due = self.dma[usize::from(ctl)].streams[usize::from(s)]
+                    .pending
+                    .is_some_and(|t| t <= self.now);
+                if due {
+                    self.dma[usize::from(ctl)].streams[usize::from(s)].pending = None;
+                    self.dma_item(ctl + 1, s);
+                }
+            }
+        }
+        self.spi_requests();
+    }
+
+    fn dma_item(&mut self, ctl: u8, s: u8) {
+        let Some(req) = Request::of(ctl, s) else {
+            return;
+        };
+        let c = usize::from(ctl - 1);
+        let st = self.dma[c].streams[usize::from(s)];
+        if st.cr & DMA_CR_EN == 0 || st.ndtr == 0 {
+            return;
+        }
+        // SPI2's requests are levels: still there?
+        let still = match req {
+            Request::SpiRx => self.rxne && self.spi_cr2 & SPI_CR2_RXDMAEN != 0,
+            Request::SpiTx => self.tx_buf.is_none() && self.spi_cr2 & SPI_CR2_TXDMAEN != 0,
+            Request::TimCh2 | Request::TimCh3 => true,
+        };
+        if !still {
+            return;
+        }
+        let mut moves = true;
+        if let Some(f) = st.fail_next {
+            self.dma[c].streams[usize::from(s)].fail_next = None;
+            self.dma[c].raise(s, f);
+            if f.intersects(Flags::TEIF) {
+                self.dma[c].streams[usize::from(s)].cr &= !DMA_CR_EN;
+            }
+            moves = !f.intersects(Flags::TEIF.union(Flags::DMEIF));
+        }
+        if !moves {
+            return;
+        }
+        let psize = (st.cr & DMA_CR_PSIZE_MASK) >> DMA_CR_PSIZE_SHIFT;
+        let bytes = 1u32 << psize;
+        let mem = st.m0ar.wrapping_add(st.moved * bytes);
+        let ok = if req.p2m() {
+            match self.periph_read(ctl, st.par, psize) {
+                Some(v) => self.mem_write(mem, psize, v),
+                None => false,
+            }
+        } else {
+            match self.mem_read(mem, psize) {
+                Some(v) => self.periph_write(ctl, st.par, psize, v),
+                None => false,
+            }
+        };
+        if !ok {
+            // A bus error: the stream stops (X8).
+            self.dma[c].raise(s, Flags::TEIF);
+            self.dma[c].streams[usize::from(s)].cr &= !DMA_CR_EN;
+            return;
+        }
+        let st = &mut self.dma[c].streams[usize::from(s)];
+        st.moved += 1;
+        st.ndtr -= 1;
+        let (moved, start, ndtr) = (st.moved, st.start, st.ndtr);
+        if moved == start / 2 && start >= 2 {
+            self.dma[c].raise(s, Flags::HTIF);
+        }
+        if ndtr == 0 {
+            self.dma[c].streams[usize::from(s)].cr &= !DMA_CR_EN;
+            self.dma[c].raise(s, Flags::TCIF);
+        }
+        self.spi_requests();
+        self.update_pins();
+    }
+
+    fn periph_read(&mut self, ctl: u8, par: u32, psize: u32) -> Option<u32> {
+        match par {
+            SPI2_DR if psize == 0 => {
+                self.rxne = false;
+                Some(u32::from(self.rx_buf))
+            }
+            GPIOB_IDR if ctl == 2 && psize >= 1 => Some(self.idr()),
+            _ => {
+                self.violate(format!(
+                    "X8: DMA{ctl} read of {par:#010x} with PSIZE {psize}: a bus error"
+                ));
+                None
+            }
+        }
+    }
+
+    fn periph_write(&mut self, ctl: u8, par: u32, psize: u32, v: u32) -> bool {
+        match par {
+            SPI2_DR if psize == 0 => {
+                self.dr_write(v as u8);
+                true
+            }
+            GPIOB_BSRR if ctl == 2 && psize == 2 => {
+                self.bsrr_write(v);
+                true
+            }
+            _ => {
+                self.violate(format!(
+                    "X8: DMA{ctl} write of {par:#010x} with PSIZE {psize}: a bus error"
+                ));
+                false
+            }
+        }
+    }
+
+    fn mem_read(&mut self, addr: u32, psize: u32) -> Option<u32> {
+        let m = &self.mem;
+        let v = match psize {
+            0 => addr
+                .checked_sub(TX_BYTES)
+                .and_then(|o| m.tx.get(o as usize))
+                .map(|&b| u32::from(b)),
+            2 => addr
+                .checked_sub(MOSI_TABLE)
+                .filter(|o| o % 4 == 0)
+                .and_then(|o| m.mosi_bsrr.get(o as usize / 4))
+                .copied(),
+            _ => None,
+        };
+        if v.is_none() {
+            self.violate(format!(
+                "X8: DMA read of memory {addr:#010x} (size {psize}): not a transmit buffer"
+            ));
+        }
+        v
+    }
+
+    fn mem_write(&mut self, addr: u32, psize: u32, v: u32) -> bool {
+        let slot_ok = match psize {
+            0 => addr
+                .checked_sub(RX_BYTES)
+                .and_then(|o| self.mem.rx.get_mut(o as usize))
+                .map(|b| *b = v as u8)
+                .is_some(),
+            1 => addr
+                .checked_sub(SAMPLES)
+                .filter(|o| o % 2 == 0)
+                .and_then(|o| self.mem.samples.get_mut(o as usize / 2))
+                .map(|b| *b = v as u16)
+                .is_some(),
+            _ => false,
+        };
+        if !slot_ok {
+            self.violate(format!(
+                "X8: DMA write of memory {addr:#010x} (size {psize}): not a receive buffer"
+            ));
+        }
+        slot_ok
+    }
+
+    /// X6, X7, X8: a write to a stream register.
+    fn stream_write(&mut self, ctl: u8, reg: DmaReg, value: u32) {
+        let (s, c) = match reg {
+            DmaReg::Cr(s) | DmaReg::Ndtr(s) | DmaReg::Par(s) | DmaReg::M0ar(s) | DmaReg::Fcr(s) => {
+                (s, usize::from(ctl - 1))
+            }
+            _ => return,
+        };
+        let Some(req) = Request::of(ctl, s) else {
+            self.violate(format!(
+                "X7: DMA{ctl} stream {s} is not the I/O extension's"
+            ));
+            return;
+        };
+        let st = self.dma[c].streams[usize::from(s)];
+        let enabled = st.cr & DMA_CR_EN != 0;
+        match reg {
+            DmaReg::Cr(_) => {
+                if enabled && (value ^ st.cr) & !DMA_CR_EN != 0 {
+                    self.violate(format!(
+                        "X6: DMA{ctl} stream {s} CR reconfigured while EN = 1"
+                    ));
+                }
+                self.dma[c].streams[usize::from(s)].cr = value;
+                if !enabled && value & DMA_CR_EN != 0 {
+                    self.enable_checks(ctl, s, req);
+                    let st = &mut self.dma[c].streams[usize::from(s)];
+                    st.moved = 0;
+                    st.start = st.ndtr;
+                    st.pending = None;
+                    self.spi_requests();
+                }
+                if enabled && value & DMA_CR_EN == 0 {
+                    self.dma[c].streams[usize::from(s)].pending = None;
+                }
+            }
+            _ if enabled => {
+                self.violate(format!(
+                    "X6: DMA{ctl} {reg:?} written while the stream is enabled"
+                ));
+            }
+            DmaReg::Ndtr(_) => self.dma[c].streams[usize::from(s)].ndtr = value & 0xFFFF,
+            DmaReg::Par(_) => self.dma[c].streams[usize::from(s)].par = value,
+            DmaReg::M0ar(_) => self.dma[c].streams[usize::from(s)].m0ar = value,
+            DmaReg::Fcr(_) => self.dma[c].streams[usize::from(s)].fcr = value,
+            _ => {}
+        }
+    }
+
+    fn enable_checks(&mut self, ctl: u8, s: u8, req: Request) {
+        let c = usize::from(ctl - 1);
+        let st = self.dma[c].streams[usize::from(s)];
+        let flags = self.dma[c].flags(s);
+        if !flags.is_empty() {
+            self.violate(format!(
+                "X6: DMA{ctl} stream {s} enabled with its flags still set ({:#04x})",
+                flags.bits()
+            ));
+        }
+        if st.ndtr == 0 {
+            self.violate(format!("X6: DMA{ctl} stream {s} enabled with NDTR = 0"));
+        }
+        let chsel = (st.cr & DMA_CR_CHSEL_MASK) >> DMA_CR_CHSEL_SHIFT;
+        if chsel != req.channel() {
+            self.violate(format!(
+                "X7: DMA{ctl} stream {s} on channel {chsel}: {} is channel {}",
+                req.name(),
+                req.channel()
+            ));
+        }
+        let dir = st.cr & DMA_CR_DIR_MASK;
+        let want_dir = if req.p2m() {
+            DMA_CR_DIR_P2M
+        } else {
+            DMA_CR_DIR_M2P
+        };
+        let psize = (st.cr & DMA_CR_PSIZE_MASK) >> DMA_CR_PSIZE_SHIFT;
+        let msize = (st.cr & DMA_CR_MSIZE_MASK) >> DMA_CR_MSIZE_SHIFT;
+        let (want_par, sizes): (u32, &[u32]) = match req {
+            Request::SpiRx | Request::SpiTx => (SPI2_DR, &[0]),
+            Request::TimCh2 => (GPIOB_IDR, &[1, 2]),
+            Request::TimCh3 => (GPIOB_BSRR, &[2]),
+        };
+        if dir != want_dir {
+            self.violate(format!(
+                "X8: DMA{ctl} stream {s} ({}) in the wrong direction",
+                req.name()
+            ));
+        }
+        if st.par != want_par {
+            self.violate(format!(
+                "X8: DMA{ctl} stream {s} ({}) PAR {:#010x}, not {want_par:#010x}",
+                req.name(),
+                st.par
+            ));
+        }
+        if !sizes.contains(&psize) {
+            self.violate(format!(
+                "X8: DMA{ctl} stream {s} ({}) PSIZE {psize}",
+                req.name()
+            ));
+        }
+        if st.fcr & DMA_FCR_DMDIS == 0 && msize != psize {
+            self.violate(format!(
+                "X8: DMA{ctl} stream {s}: direct mode with MSIZE {msize} ≠ PSIZE {psize}"
+            ));
+        }
+        if st.cr & DMA_CR_MINC == 0 || st.cr & (DMA_CR_PINC | DMA_CR_CIRC | DMA_CR_PFCTRL) != 0 {
+            self.violate(format!(
+                "X8: DMA{ctl} stream {s}: CR {:#010x} is not memory-incremented, one-shot, DMA-flow-controlled",
+                st.cr
+            ));
+        }
+        if req == Request::SpiTx && self.spi_cr2 & SPI_CR2_TXDMAEN != 0 {
+            self.violate("X4: SPI2_TX stream enabled after TXDMAEN");
+            if self.tx_buf.is_none() {
+                // The request was already active: FEIF, as in direct mode.
+                self.dma[c].raise(s, Flags::FEIF);
+            }
+        }
+    }
+
+    fn dma_read(&mut self, ctl: u8, reg: DmaReg) -> u32 {
+        let c = usize::from(ctl - 1);
+        let d = &self.dma[c];
+        let st = |s: u8| &d.streams[usize::from(s % 8)];
+        match reg {
+            DmaReg::Lisr => d.isr[0],
+            DmaReg::Hisr => d.isr[1],
+            DmaReg::Lifcr | DmaReg::Hifcr => 0,
+            DmaReg::Cr(s) => st(s).cr,
+            DmaReg::Ndtr(s) => st(s).ndtr,
+            DmaReg::Par(s) => st(s).par,
+            DmaReg::M0ar(s) => st(s).m0ar,
+            DmaReg::Fcr(s) => st(s).fcr,
+        }
+    }
+
+    fn dma_write(&mut self, ctl: u8, reg: DmaReg, value: u32) {
+        let c = usize::from(ctl - 1);
+        match reg {
+            DmaReg::Lisr | DmaReg::Hisr => self.violate(format!("DMA{ctl} {reg:?} is read-only")),
+            DmaReg::Lifcr | DmaReg::Hifcr => {
+                let hi = usize::from(reg == DmaReg::Hifcr);
+                let own: u32 = (0..4u8)
+                    .filter(|&k| Request::of(ctl, k + 4 * hi as u8).is_some())
+                    .map(|k| Flags::ALL.at(k))
+                    .sum();
+                if value & !own != 0 {
+                    self.violate(format!(
+                        "X7: DMA{ctl} {reg:?} {value:#010x} clears another stream's flags"
+                    ));
+                }
+                self.dma[c].isr[hi] &= !value;
+            }
+            _ => self.stream_write(ctl, reg, value),
+        }
+    }
+
+    // ------------------------------------------------------------ GPIOB --
+
+    fn gpio_write(&mut self, reg: GpioReg, value: u32) {
+        let (old, width) = match reg {
+            GpioReg::Moder => (self.moder, 2),
+            GpioReg::Pupdr => (self.pupdr, 2),
+            GpioReg::Afrh => (self.afrh, 4),
+            GpioReg::Bsrr => {
+                self.bsrr_write(value);
+                return;
+            }
+            GpioReg::Idr => {
+                self.violate("X12: GPIOB_IDR is read-only");
+                return;
+            }
+        };
+        if self.masked == 0 {
+            self.violate(format!(
+                "X12: GPIOB {reg:?} written outside the critical section"
+            ));
+        }
+        let mut ours = 0u32;
+        for p in OUR_PINS {
+            let f = if width == 4 { p - 8 } else { p };
+            ours |= ((1 << width) - 1) << (u32::from(f) * width);
+        }
+        if (old ^ value) & !ours != 0 {
+            self.violate(format!(
+                "X12: GPIOB {reg:?} {old:#010x} -> {value:#010x} changes another pin"
+            ));
+        }
+        match reg {
+            GpioReg::Moder => self.moder = value,
+            GpioReg::Pupdr => self.pupdr = value,
+            _ => self.afrh = value,
+        }
+        self.update_pins();
+    }
+
+    fn bsrr_write(&mut self, value: u32) {
+        let allowed = (1 << 11) | (1 << 15);
+        if value & !(allowed | allowed << 16) != 0 {
+            self.violate(format!("X12: GPIOB_BSRR {value:#010x} drives another pin"));
+        }
+        self.odr &= !(value >> 16);
+        self.odr |= value & 0xFFFF;
+        self.update_pins();
+    }
+
+    fn idr(&self) -> u32 {
+        (u32::from(self.cs) << 11)
+            | (u32::from(self.sck) << 13)
+            | (u32::from(self.chips.miso()) << 14)
+            | (u32::from(self.mosi) << 15)
+    }
+
+    /// A pin nothing drives: its pull, else its last level.
+    fn undriven(&self, pin: u8, last: bool) -> bool {
+        match field(self.pupdr, pin, 2) {
+            0b01 => true,
+            0b10 => false,
+            _ => last,
+        }
+    }
+
+    /// The pins' levels now; X13 on the edges, the chips on the wire.
+    fn update_pins(&mut self) {
+        let spi_on = self.spi_enabled();
+        let cs = match field(self.moder, 11, 2) {
+            0b01 => self.odr & (1 << 11) != 0,
+            // An external pull-up.
+            _ => true,
+        };
+        let sck = match (field(self.moder, 13, 2), field(self.afrh, 5, 4)) {
+            (0b01, _) => self.odr & (1 << 13) != 0,
+            (0b10, 5) if spi_on => self.spi_sck,
+            (0b10, 1) => match self.oc1n() {
+                Some(level) => level,
+                None => self.undriven(13, self.sck),
+            },
+            _ => self.undriven(13, self.sck),
+        };
+        let mosi = match (field(self.moder, 15, 2), field(self.afrh, 7, 4)) {
+            (0b01, _) => self.odr & (1 << 15) != 0,
+            (0b10, 5) if spi_on => self.spi_mosi,
+            _ => self.undriven(15, self.mosi),
+        };
+        let (cs_edge, sck_edge) = (cs != self.cs, sck != self.sck);
+        if cs_edge && sck_edge {
+            self.violate("X13: CS and SCK change at the same instant");
+        }
+        if cs_edge {
+            if cs {
+                if self.busy() {
+                    self.violate("X5: CS raised while SPI2 is busy: the last frame is cut");
+                }
+                let idle = self.windows.last().map(|w| w.idle);
+                if idle.is_some_and(|i| i != sck) {
+                    self.violate("X13: CS rose with SCK away from the level it had when CS fell");
+                }
+                if let Some(w) = self.windows.last_mut() {
+                    w.rose = Some(self.now);
+                }
+            } else {
+                self.windows.push(CsWindow {
+                    fell: self.now,
+                    rose: None,
+                    idle: sck,
+                    engine_start: None,
+                    edges: Vec::new(),
+                });
+            }
+            self.chips.cs_edge(cs);
+            self.cs = cs;
+        }
+        if sck_edge {
+            if self.cs && (self.frame.is_some() || self.tim_running()) {
+                self.violate("X13: SCK clocked by SPI2 or TIM1 while CS is high");
+            }
+            if self.cs {
+                self.stray_edges += 1;
+            } else if let Some(w) = self.windows.last_mut() {
+                w.edges.push(self.now);
+            }
+            if sck {
+                // The chips see MOSI as it was before this instant.
+                self.chips.sck_rise(self.mosi);
+            }
+            self.sck = sck;
+        }
+        self.mosi = mosi;
+    }
+
+    // ------------------------------------------------------- registers --
+
+    fn read_reg(&mut self, reg: IoReg) -> u32 {
+        match reg {
+            IoReg::Spi(r) => match r {
+                SpiReg::Cr1 => self.spi_cr1,
+                SpiReg::Cr2 => self.spi_cr2,
+                SpiReg::Sr => self.spi_sr(),
+                SpiReg::Dr => {
+                    self.rxne = false;
+                    self.dr_read = true;
+                    u32::from(self.rx_buf)
+                }
+            },
+            IoReg::Dma1(r) => self.dma_read(1, r),
+            IoReg::Dma2(r) => self.dma_read(2, r),
+            IoReg::Tim(r) => self.tim_read(r),
+            IoReg::Gpio(r) => match r {
+                GpioReg::Moder => self.moder,
+                GpioReg::Pupdr => self.pupdr,
+                GpioReg::Afrh => self.afrh,
+                GpioReg::Idr => self.idr(),
+                GpioReg::Bsrr => 0,
+            },
+        }
+    }
+
+    fn write_reg(&mut self, reg: IoReg, value: u32) {
+        match reg {
+            IoReg::Spi(r) => match r {
+                SpiReg::Cr1 => self.spi_cr1_write(value),
+                SpiReg::Cr2 => {
+                    let value = value & 0xFF;
+                    if value & SPI_CR2_TXDMAEN != 0 && self.spi_cr2 & SPI_CR2_TXDMAEN == 0 {
+                        let tx = self.dma[0].streams[4].cr;
+                        if tx & DMA_CR_EN == 0 {
+                            self.violate("X4: TXDMAEN set with the SPI2_TX stream disabled");
+                        }
+                        let rx = self.dma[0].streams[3].cr;
+                        if rx & DMA_CR_EN == 0 || self.spi_cr2 & SPI_CR2_RXDMAEN == 0 {
+                            self.violate("X4: TXDMAEN set before RXDMAEN and the SPI2_RX stream");
+                        }
+                    }
+                    self.spi_cr2 = value;
+                    self.spi_requests();
+                }
+                SpiReg::Sr => {}
+                SpiReg::Dr => self.dr_write(value as u8),
+            },
+            IoReg::Dma1(r) => self.dma_write(1, r, value),
+            IoReg::Dma2(r) => self.dma_write(2, r, value),
+            IoReg::Tim(r) => self.tim_write(r, value),
+            IoReg::Gpio(r) => self.gpio_write(r, value),
+        }
+        self.update_pins();
+    }
+}
+
+/// A shared handle on the model: the driver holds one, the test another.
+#[derive(Clone, Debug)]
+pub struct IoHandle(Rc<RefCell<IoModel>>);
+
+impl IoHandle {
+    pub fn new(chips: ShiftRegs) -> IoHandle {
+        IoHandle(Rc::new(RefCell::new(IoModel::new(chips))))
+    }
+
+    pub fn model(&self) -> Ref<'_, IoModel> {
+        self.0.borrow()
+    }
+
+    pub fn model_mut(&self) -> RefMut<'_, IoModel> {
+        self.0.borrow_mut()
+    }
+}
+
+impl Regs<IoReg> for IoHandle {
+    fn read(&mut self, reg: IoReg) -> u32 {
+        let mut m = self.0.borrow_mut();
+        m.tick_access();
+        m.read_reg(reg)
+    }
+
+    fn write(&mut self, reg: IoReg, value: u32) {
+        let mut m = self.0.borrow_mut();
+        m.tick_access();
+        m.write_reg(reg, value);
+    }
+}
+
+impl IoExtHw for IoHandle {
+    const PINS: Pins = PINS;
+
+    fn delay_cycles(&mut self, cycles: u32) {
+        let mut m = self.0.borrow_mut();
+        let t = m.now + u64::from(cycles);
+        m.advance_to(t);
+    }
+
+    fn masked<R>(&mut self, f: impl FnOnce(&mut Self) -> R) -> R {
+        self.0.borrow_mut().masked += 1;
+        let r = f(self);
+        self.0.borrow_mut().masked -= 1;
+        r
+    }
+
+    fn buffers<R>(&mut self, f: impl FnOnce(&mut IoExtBuffers) -> R) -> R {
+        f(&mut self.0.borrow_mut().mem)
+    }
+
+    fn address(&self, target: Target) -> u32 {
+        match target {
+            Target::TxBytes => TX_BYTES,
+            Target::RxBytes => RX_BYTES,
+            Target::MosiTable => MOSI_TABLE,
+            Target::Samples => SAMPLES,
+            Target::SpiDr => SPI2_DR,
+            Target::GpioBsrr => GPIOB_BSRR,
+            Target::GpioIdr => GPIOB_IDR,
+        }
+    }
+}
+
+// Keep MAX in use (the buffers' size is the driver's).
+const _: () = assert!(MAX == 256);
