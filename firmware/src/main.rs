@@ -230,8 +230,7 @@ mod app {
         if handoff == Some(ResetTarget::RomDfu) {
             platform::rom_bootloader(&dp.RCC, &dp.SYSCFG);
         }
-        let reset_flags = platform::reset_flags(&dp.RCC);
-        let reset_cause = platform::reset_cause(&dp.RCC);
+        let reset_cause = ResetCause::from_rcc_csr(platform::take_reset_flags(&dp.RCC));
         let mut rcc = platform::freeze_clocks(dp.RCC);
         let sysclk = rcc.clocks.sysclk().raw();
         info!(
@@ -297,7 +296,7 @@ mod app {
                 platform::tick_need_ns(bridge.axes()) / 1000
             );
         }
-        bridge.set_reset_cause(ResetCause::from_rcc_csr(reset_flags));
+        bridge.set_reset_cause(reset_cause);
         bridge.set_build_id(firmware::BUILD_ID);
         let uid = platform::unique_id();
         bridge.set_unique_id(uid);

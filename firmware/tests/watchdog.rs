@@ -26,7 +26,8 @@ mod support {
     use core::mem::MaybeUninit;
     use core::ptr::{addr_of, addr_of_mut};
 
-    use firmware::platform::{ResetCause, Watchdog};
+    use bridge_logic::bridge::ResetCause;
+    use firmware::platform::Watchdog;
     use stm32f4xx_hal::pac;
 
     /// Longer than the long window's longest timeout (12.2 s at the
@@ -104,11 +105,12 @@ mod support {
 #[cfg(target_os = "none")]
 #[defmt_test::tests]
 mod tests {
+    use bridge_logic::bridge::ResetCause;
     use bridge_logic::bridge::WatchdogWindow;
     use bridge_logic::rate::PERIOD_MAX_US;
     use drivers_core::iwdg::{SAVE_STALL_MAX_US, SHORT_MAX_US, SHORT_MIN_US};
     use firmware::drivers::clock;
-    use firmware::platform::{ResetCause, Watchdog};
+    use firmware::platform::Watchdog;
 
     use super::common;
     use super::support::{
@@ -170,7 +172,7 @@ mod tests {
     #[test]
     fn unfed_in_the_short_window_it_resets_the_mcu_within_its_bounds(s: &mut State) {
         if let Some(us) = s.after_stall {
-            defmt::assert_eq!(s.reset_cause, ResetCause::IndependentWatchdog);
+            defmt::assert_eq!(s.reset_cause, ResetCause::Watchdog);
             defmt::info!(
                 "the watchdog reset the MCU {=u32} us after the last feed",
                 us

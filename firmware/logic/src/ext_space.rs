@@ -67,7 +67,8 @@ pub mod diag {
     /// Chip resets of axis 0..7, one register each.
     pub const CHIP_RESETS_AXIS0: u8 = 0x30;
     pub const CHAIN_LENGTH: u8 = 0x40;
-    /// 0 unknown, 1 power-on, 2 reset pin, 3 watchdog, 4 software, 5 brown-out.
+    /// 0 unknown, 1 power-on, 2 reset pin, 3 watchdog, 4 software, 5 brown-out,
+    /// 6 low-power.
     pub const RESET_CAUSE: u8 = 0x41;
     /// 0 loaded from the store, 1 store empty, 2 store unreadable.
     pub const SETTINGS_SOURCE: u8 = 0x42;

@@ -14,7 +14,6 @@ use stm32f4xx_hal::time::Hertz;
 use stm32f4xx_hal::timer::{CounterHz, Event, Flag, TimerExt};
 use stm32f4xx_hal::{ClearFlags, Listen};
 
-use super::ResetCause;
 use crate::board::{
     self, ChainCs, ChainGapTimer, ChainMiso, ChainMosi, ChainSck, ChainSpi, IoExtCs, IoExtMiso,
     IoExtMosi, IoExtSck, IoExtSpi, IoExtSpiDma, IoExtTimer, IoExtTimerDma,
@@ -47,35 +46,13 @@ pub fn systick_hz(rcc: &Rcc) -> u32 {
 }
 
 /// RCC_CSR as the reset left it (its reset flags, for
-/// `bridge_logic::bridge::ResetCause::from_rcc_csr`). Call it before
-/// [`reset_cause`], which clears them.
-pub fn reset_flags(rcc: &pac::RCC) -> u32 {
-    rcc.csr().read().bits()
-}
-
-/// Why the MCU started, from RCC_CSR; the flags are cleared (RMVF) so the
-/// next reset reports only its own cause. Call it before `freeze_clocks`.
-pub fn reset_cause(rcc: &pac::RCC) -> ResetCause {
-    let csr = rcc.csr().read();
-    let cause = if csr.wdgrstf().bit_is_set() {
-        ResetCause::IndependentWatchdog
-    } else if csr.wwdgrstf().bit_is_set() {
-        ResetCause::WindowWatchdog
-    } else if csr.lpwrrstf().bit_is_set() {
-        ResetCause::LowPower
-    } else if csr.sftrstf().bit_is_set() {
-        ResetCause::Software
-    } else if csr.porrstf().bit_is_set() {
-        ResetCause::PowerOn
-    } else if csr.borrstf().bit_is_set() {
-        ResetCause::Brownout
-    } else if csr.padrstf().bit_is_set() {
-        ResetCause::Pin
-    } else {
-        ResetCause::Unknown
-    };
+/// `bridge_logic::bridge::ResetCause::from_rcc_csr`), then cleared (RMVF)
+/// so the next reset reports only its own cause. Call it before
+/// `freeze_clocks`.
+pub fn take_reset_flags(rcc: &pac::RCC) -> u32 {
+    let flags = rcc.csr().read().bits();
     rcc.csr().modify(|_, w| w.rmvf().set_bit());
-    cause
+    flags
 }
 
 /// The independent watchdog (`drivers_core::iwdg` on `pac::IWDG`) in the

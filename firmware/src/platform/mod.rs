@@ -11,7 +11,7 @@
 //! |---|---|---|---|
 //! | `freeze_clocks` | 8 MHz HSE, PLL to 168 MHz and 48 MHz PLL48CLK | 16 MHz HSI, no PLL | RCC ready bits read 0: HSE/PLL start-up hangs |
 //! | `systick_hz` | SYSCLK | 168 MHz | QEMU's SysTick counts at 168 MHz whatever the clocks say |
-//! | `reset_flags`, `reset_cause` | RCC_CSR flags (then cleared) | 0, [`ResetCause::Unknown`] | RCC not modelled |
+//! | `take_reset_flags` | RCC_CSR's reset flags, then cleared (decoded by `bridge_logic::bridge::ResetCause`) | 0 (unknown) | RCC not modelled |
 //! | `Watchdog` | IWDG (`drivers_core::iwdg`): started in the long window (6.5 s nominal), then fed in the bridge's (`feed_in`: short, 25 ms, whenever an axis may move; long only around a save's erase) | does nothing; every window "in effect" | IWDG not modelled |
 //! | `TickTimer` | TIM2 update at the control rate (HAL) | TIM2 programmed for QEMU's timer model, each deadline armed on the period's phase | QEMU's TIM2 ignores the prescaler and re-arms from the moment it is served |
 //! | `tick_need_ns` (the tick's cost the rate is fitted to) | `rate::tick_need_ns`: SPI bytes and computation | measured per simulated chip | the simulated chips cost more than SPI bytes |
@@ -37,24 +37,3 @@
 mod selected;
 
 pub use selected::*;
-
-/// Why the MCU last started (RM0090 RCC_CSR), most specific first.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, defmt::Format)]
-pub enum ResetCause {
-    /// The independent watchdog expired: the control tick stalled.
-    IndependentWatchdog,
-    /// The window watchdog (unused by this firmware).
-    WindowWatchdog,
-    /// Entering Standby/Stop when the option bytes forbid it.
-    LowPower,
-    /// `SCB::sys_reset` (e.g. the PoStep60 "system reset" command).
-    Software,
-    /// Power-on or power-down reset.
-    PowerOn,
-    /// Brown-out reset.
-    Brownout,
-    /// The NRST pin (a debugger's reset, the reset button).
-    Pin,
-    /// No flag set, or the platform cannot tell (QEMU).
-    Unknown,
-}

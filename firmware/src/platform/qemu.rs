@@ -68,7 +68,6 @@ use stepbridge_sim::{ConsoleCommand, HomeCam, Lines, ShiftChain, SimChain};
 use stm32f4xx_hal::pac;
 use stm32f4xx_hal::rcc::{Config, Enable, Rcc, RccExt, Reset};
 
-use super::ResetCause;
 use crate::board::{
     self, ChainCs, ChainGapTimer, ChainMiso, ChainMosi, ChainSck, ChainSpi, HostI2c, HostI2cScl,
     HostI2cSda, IoExtCs, IoExtMiso, IoExtMosi, IoExtSck, IoExtSpi, IoExtSpiDma, IoExtTimer,
@@ -107,14 +106,9 @@ pub fn systick_hz(_rcc: &Rcc) -> u32 {
     SYSTICK_HZ
 }
 
-/// QEMU models no RCC_CSR: no reset flag (a normal start).
-pub fn reset_flags(_rcc: &pac::RCC) -> u32 {
+/// QEMU models no RCC_CSR: no reset flag (unknown cause).
+pub fn take_reset_flags(_rcc: &pac::RCC) -> u32 {
     0
-}
-
-/// QEMU models no RCC_CSR: always [`ResetCause::Unknown`].
-pub fn reset_cause(_rcc: &pac::RCC) -> ResetCause {
-    ResetCause::Unknown
 }
 
 /// Watchdog stand-in: QEMU does not model the IWDG, so nothing is started,

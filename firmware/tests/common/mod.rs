@@ -16,9 +16,10 @@ macro_rules! marker {
     };
 }
 
+use bridge_logic::bridge::ResetCause;
 use firmware::board::{self, Pins};
 use firmware::drivers::clock::{self, Mono};
-use firmware::platform::{self, ResetCause};
+use firmware::platform;
 use stm32f4xx_hal::gpio::GpioExt;
 use stm32f4xx_hal::pac;
 use stm32f4xx_hal::rcc::Rcc;
@@ -52,7 +53,7 @@ pub fn setup() -> Target {
     let Some(mut cp) = cortex_m::Peripherals::take() else {
         defmt::panic!("core peripherals taken twice");
     };
-    let reset_cause = platform::reset_cause(&dp.RCC);
+    let reset_cause = ResetCause::from_rcc_csr(platform::take_reset_flags(&dp.RCC));
     let mut rcc = platform::freeze_clocks(dp.RCC);
     let sysclk_hz = rcc.clocks.sysclk().raw();
     cp.DCB.enable_trace();

@@ -96,16 +96,26 @@ pub enum Bus {
     Usb = 2,
 }
 
-/// Why the MCU last reset (from RCC_CSR, decoded by [`ResetCause::from_rcc_csr`]).
+/// Why the MCU last reset (from RCC_CSR, decoded by
+/// [`ResetCause::from_rcc_csr`]; the one decoder of that register: the
+/// firmware logs and reports this).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ResetCause {
+    /// No flag set, or the platform cannot tell (QEMU).
     Unknown = 0,
+    /// Power-on or power-down reset.
     PowerOn = 1,
+    /// The NRST pin (a debugger's reset, the reset button).
     Pin = 2,
+    /// A watchdog expired (the firmware runs the independent one: the
+    /// control tick stalled).
     Watchdog = 3,
+    /// `SCB::sys_reset` (a "system reset" command, a restart into boot mode).
     Software = 4,
     Brownout = 5,
+    /// Entering Standby/Stop when the option bytes forbid it.
+    LowPower = 6,
 }
 
 impl ResetCause {
@@ -115,6 +125,8 @@ impl ResetCause {
     pub const fn from_rcc_csr(csr: u32) -> ResetCause {
         if csr & (1 << 30 | 1 << 29) != 0 {
             ResetCause::Watchdog
+        } else if csr & 1 << 31 != 0 {
+            ResetCause::LowPower
         } else if csr & 1 << 28 != 0 {
             ResetCause::Software
         } else if csr & 1 << 27 != 0 {
