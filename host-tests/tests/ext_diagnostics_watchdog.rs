@@ -105,6 +105,15 @@ fn reset_causes_decode_from_rcc_csr() {
     );
     assert_eq!(ResetCause::from_rcc_csr(1 << 26), ResetCause::Pin);
     assert_eq!(
+        ResetCause::from_rcc_csr(1 << 31 | 1 << 26),
+        ResetCause::LowPower
+    );
+    assert_eq!(
+        ResetCause::from_rcc_csr(1 << 30 | 1 << 26),
+        ResetCause::Watchdog,
+        "the window watchdog too"
+    );
+    assert_eq!(
         ResetCause::from_rcc_csr(1 << 29 | 1 << 26),
         ResetCause::Watchdog
     );
