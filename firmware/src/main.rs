@@ -243,7 +243,7 @@ mod app {
         );
         // `start` asserts a whole number of cycles per tick: 168 MHz is.
         let systick_hz = platform::systick_hz(&rcc);
-        Mono::start(core.SYST, systick_hz - systick_hz % clock::TICK_HZ);
+        Mono::start(core.SYST, systick_hz - systick_hz % clock::MONO_HZ);
         platform::enable_stopwatch(&mut core.DCB, &mut core.DWT);
 
         // From here on a stalled control tick resets the MCU: in the long

@@ -27,7 +27,7 @@ mod tests {
     #[test]
     fn reload_gives_the_10_khz_monotonic(t: &mut Target) {
         let per_tick = SYST::get_reload() + 1;
-        defmt::assert_eq!(per_tick, t.systick_hz / clock::TICK_HZ);
+        defmt::assert_eq!(per_tick, t.systick_hz / clock::MONO_HZ);
     }
 
     #[test]

@@ -3,7 +3,7 @@
 //!
 //! # What it guarantees
 //!
-//! * [`Mono`] ticks at [`TICK_HZ`] = 10 kHz with a 64-bit count (it never
+//! * [`Mono`] ticks at [`MONO_HZ`] = 10 kHz with a 64-bit count (it never
 //!   wraps): `Mono::delay_until` wakes a task at the first tick at or after
 //!   the instant, i.e. at most 100 µs late (plus interrupt latency). The
 //!   SysTick backend of rtic-monotonics interrupts on every tick, so the rate
@@ -28,13 +28,13 @@ use cortex_m::peripheral::SYST;
 use rtic_monotonics::systick::prelude::*;
 
 /// Monotonic tick rate.
-pub const TICK_HZ: u32 = 10_000;
+pub const MONO_HZ: u32 = 10_000;
 /// µs per monotonic tick.
-const US_PER_TICK: u64 = 1_000_000 / TICK_HZ as u64;
+const US_PER_TICK: u64 = 1_000_000 / MONO_HZ as u64;
 
 systick_monotonic!(Mono, 10_000);
 const _: () = assert!(
-    TICK_HZ == 10_000,
+    MONO_HZ == 10_000,
     "the macro takes a literal: keep both in step"
 );
 

@@ -59,7 +59,7 @@ pub fn setup() -> Target {
     cp.DCB.enable_trace();
     cp.DWT.enable_cycle_counter();
     let systick_hz = platform::systick_hz(&rcc);
-    Mono::start(cp.SYST, systick_hz - systick_hz % clock::TICK_HZ);
+    Mono::start(cp.SYST, systick_hz - systick_hz % clock::MONO_HZ);
     let pins = board::configure(
         dp.GPIOA.split(&mut rcc),
         dp.GPIOB.split(&mut rcc),
