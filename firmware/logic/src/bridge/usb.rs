@@ -113,7 +113,15 @@ impl<B: ChainBus> Bridge<B> {
         self.diag.usb_reports = self.diag.usb_reports.saturating_add(1);
         self.heard(Bus::Usb);
         let k = usize::from(axis);
-        let exists = k < self.axes();
+        // With no chip detected, axis 0 still takes extension requests (the
+        // bridge-scope blocks answer; an axis's are refused by `ext_read`).
+        let exists = k < self.axes()
+            || (k == 0
+                && self.axes() == 0
+                && matches!(
+                    req,
+                    UsbRequest::ExtRead { .. } | UsbRequest::ExtWrite { .. }
+                ));
         let response = match req {
             UsbRequest::SystemReset => {
                 let target = match self.run_mode {

@@ -253,6 +253,11 @@ impl ChipImage {
         self.dirty == 0
     }
 
+    /// Configured registers not yet written (since the last reset or change).
+    pub fn pending(&self) -> u32 {
+        (self.dirty & self.owned).count_ones()
+    }
+
     /// The next register to write: STEP_MODE, then CONFIG, then by address,
     /// among those `allowed` accepts.
     fn next(&self, allowed: impl Fn(Register) -> bool) -> Option<(Register, u32)> {
@@ -679,6 +684,20 @@ impl Axis {
         !matches!(self.state, AxisState::Setup(_))
     }
     /// The registers the bridge configures on the chip and their values.
+    /// What the bridge configures in `reg` on this axis's chip: the chip
+    /// image's value, or for MAX_SPEED, ACC and DEC the value last written
+    /// (None before the set-up wrote it, and for every register the bridge
+    /// does not configure: ABS_POS, EL_POS, MARK, SPEED, ADC_OUT, STATUS).
+    pub fn programmed(&self, reg: Register) -> Option<u32> {
+        let written = match reg {
+            Register::MaxSpeed => self.limits.max_speed,
+            Register::Acc => self.limits.acc,
+            Register::Dec => self.limits.dec,
+            _ => return self.image.get(reg),
+        };
+        (!matches!(self.state, AxisState::Setup(_)) || written != 0).then_some(written)
+    }
+
     pub fn chip_image(&self) -> &ChipImage {
         &self.image
     }

@@ -31,4 +31,4 @@ pub use chain::SimChain;
 pub use powerstep01::{Fault, HomeCam, Powerstep01, TICK_NS};
 pub use settings_store::sim as flash;
 pub use settings_store::sim::{SimFlash, SimFlashError};
-pub use shift::{ConsoleCommand, ShiftChain};
+pub use shift::{ConsoleCommand, ConsoleLine, ShiftChain};
