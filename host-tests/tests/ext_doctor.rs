@@ -248,7 +248,7 @@ fn with_no_chip_detected_usb_axis_0_takes_extension_requests() {
         r[62] = axis;
         r
     };
-    let mut answer = |bridge: &mut Bridge<SimChain>, report: [u8; 64]| {
+    let answer = |bridge: &mut Bridge<SimChain>, report: [u8; 64]| {
         bridge.on_usb_report(&report, 0);
         let r = bridge.usb_next(0).copied().expect("a response");
         bridge.usb_sent();

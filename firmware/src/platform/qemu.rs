@@ -55,11 +55,13 @@
 //!   (`stepctl doctor`): `chip K dead [HH]` / `revive` / `reset` / `uvlo` /
 //!   `ocd` (handed to [`ChainDriver`], applied before its next window),
 //!   `supply MV` / `supply off` (what [`Analog`] reports), `jumper on` /
-//!   `off` (a MOSI → MISO jumper on the I/O extension's port) and `mcu
-//!   reset` (SYSRESETREQ). Dead chips, the supply and the jumper are kept
-//!   in `.uninit` RAM across an MCU reset ([`Kept`]), as a broken chip stays
-//!   broken when only the MCU resets: `chip K dead`, then `mcu reset`, boots
-//!   with a chain the detection cannot measure (no axis).
+//!   `off` (a MOSI → MISO jumper on the I/O extension's port). The same
+//!   lines in the host file `<settings flash file>.boot`, if there is one,
+//!   are applied at boot before the chain is detected ([`chain_driver`]):
+//!   a chip dead at power-up (`chip 1 dead`) leaves a chain the detection
+//!   cannot measure. (Not an MCU reset on the console: after QEMU 7.2's
+//!   system reset its TIM2 model adds the time of the reset to every
+//!   period, so the control tick would crawl.)
 //! * **Faults**: a HardFault (also the end of the panic handler, after its
 //!   message) exits QEMU with status 1, so a crash fails a run instead of
 //!   hanging it.
@@ -74,8 +76,6 @@ use bridge_logic::powerstep::chain::{clock_windows, Frames, Plan};
 use bridge_logic::powerstep::ChainBus;
 use bridge_logic::sim::{ConsoleLine, Fault, HomeCam, ShiftChain, SimChain};
 use bridge_logic::transport::i2c::{I2cSlave, I2cTarget};
-use core::mem::MaybeUninit;
-use core::ptr::{addr_of, addr_of_mut};
 use core::sync::atomic::{AtomicBool, AtomicU16, AtomicU32, Ordering};
 use defmt_semihosting as _;
 use drivers_core::iwdg::WindowError;
@@ -383,21 +383,9 @@ pub fn chain_driver(
     rcc: &mut Rcc,
 ) -> (ChainDriver, ChainDma) {
     let mut chain = SimChain::new(AXES);
-    // Chips the console killed before the last MCU reset stay dead.
-    let kept = Kept::load();
-    for (k, chip) in chain.devices_mut().iter_mut().enumerate() {
-        if kept.dead & 1 << k != 0 {
-            let stuck = kept.stuck.get(k).copied().unwrap_or(0xFF);
-            chip.inject(Fault::Dead(stuck));
-            defmt::warn!(
-                "sim: chip {=usize} dead since before the MCU reset (SDO stuck at {=u8:#04x})",
-                k,
-                stuck
-            );
-        }
-    }
-    SUPPLY_MV.store(kept.supply_mv, Ordering::Relaxed);
-    JUMPER.store(kept.jumper != 0, Ordering::Relaxed);
+    // Faults present at power-up: the boot file's console lines.
+    flash::boot_lines(|line| apply(ConsoleLine::parse(line, IOEXT_165 * 8, AXES), line.len()));
+    take_chip_faults(&mut chain);
     // The last axis has a home switch: a cam on its shaft presses SW below
     // HOME_CAM_EDGE microsteps (the end-to-end test homes it over Modbus).
     if let Some(chip) = chain.device_mut(AXES - 1) {
@@ -582,55 +570,6 @@ fn take_chip_faults(chain: &mut SimChain) {
     }
 }
 
-/// The simulated faults kept across an MCU reset (module docs), in
-/// `.uninit` RAM like the reset handoff word: noise after QEMU starts,
-/// which [`Kept::MAGIC`] turns into "healthy".
-#[derive(Clone, Copy)]
-#[repr(C)]
-struct Kept {
-    magic: u32,
-    /// Bit k: chip k dead.
-    dead: u32,
-    stuck: [u8; AXES],
-    supply_mv: u32,
-    jumper: u32,
-}
-
-impl Kept {
-    const MAGIC: u32 = 0x5349_4D46;
-    const HEALTHY: Kept = Kept {
-        magic: Kept::MAGIC,
-        dead: 0,
-        stuck: [0xFF; AXES],
-        supply_mv: SUPPLY_OWN,
-        jumper: 0,
-    };
-
-    fn load() -> Kept {
-        // SAFETY: a volatile read of our own `.uninit` static (cortex-m-rt
-        // neither zeroes nor initialises it); every bit pattern is a valid
-        // `Kept` (integers only); written only by `store`, in the control
-        // tick, never while this runs (`init`).
-        let k = unsafe { core::ptr::read_volatile(addr_of!(KEPT).cast::<Kept>()) };
-        if k.magic == Kept::MAGIC {
-            k
-        } else {
-            Kept::HEALTHY
-        }
-    }
-
-    fn store(self) {
-        // SAFETY: a volatile write of our own static, from the control tick
-        // only (the console), see `load`.
-        unsafe { core::ptr::write_volatile(addr_of_mut!(KEPT).cast::<Kept>(), self) }
-    }
-}
-
-// SAFETY: `.uninit.*` is a NOLOAD RAM section of cortex-m-rt's link.x;
-// nothing else is put at this name.
-#[link_section = ".uninit.STEPBRIDGE_SIM"]
-static mut KEPT: MaybeUninit<Kept> = MaybeUninit::uninit();
-
 /// Longest console line (`chip 7 dead FF`, `supply 200000` and some slack).
 const CONSOLE_LINE: usize = 24;
 
@@ -680,9 +619,8 @@ impl Console {
     }
 }
 
-/// Act on one console line (and keep what survives an MCU reset).
+/// Act on one console line.
 fn apply(line: Option<ConsoleLine>, len: usize) {
-    let mut kept = Kept::load();
     match line {
         Some(ConsoleLine::Input(c)) => {
             let bit = 1u32 << c.bit;
@@ -696,12 +634,10 @@ fn apply(line: Option<ConsoleLine>, len: usize) {
                 c.bit,
                 if c.closed { "closed" } else { "open" }
             );
-            return;
         }
         Some(ConsoleLine::Supply(mv)) => {
             let mv = mv.unwrap_or(SUPPLY_OWN);
             SUPPLY_MV.store(mv, Ordering::Relaxed);
-            kept.supply_mv = mv;
             if mv == SUPPLY_OWN {
                 defmt::info!("sim console: supply back to the fixed 24 V reading");
             } else {
@@ -710,45 +646,25 @@ fn apply(line: Option<ConsoleLine>, len: usize) {
         }
         Some(ConsoleLine::Jumper(on)) => {
             JUMPER.store(on, Ordering::Relaxed);
-            kept.jumper = u32::from(on);
             defmt::info!(
                 "sim console: I/O extension MOSI -> MISO jumper {=str}",
                 if on { "on" } else { "off" }
             );
         }
-        Some(ConsoleLine::McuReset) => {
-            defmt::warn!("sim console: MCU reset (the simulated faults stay)");
-            cortex_m::peripheral::SCB::sys_reset();
-        }
         Some(l) => {
             let Some((k, f)) = l.chip_fault() else {
                 return;
             };
-            match f {
-                Fault::Dead(stuck) => {
-                    kept.dead |= 1 << k;
-                    if let Some(b) = kept.stuck.get_mut(k) {
-                        *b = stuck;
-                    }
-                }
-                Fault::Revive => kept.dead &= !(1 << k),
-                _ => {}
-            }
             if let Some(slot) = CHIP_FAULTS.get(k) {
                 slot.store(fault_code(f), Ordering::Relaxed);
             }
             defmt::info!("sim console: chip {=usize}: {}", k, l);
         }
-        None if len == 0 => return,
-        None => {
-            defmt::warn!(
-                "sim console: unknown line (press N, release N, chip K dead|revive|reset|uvlo|ocd, supply MV|off, jumper on|off, mcu reset)"
-            );
-            return;
-        }
+        None if len == 0 => {}
+        None => defmt::warn!(
+            "sim console: unknown line (press N, release N, chip K dead|revive|reset|uvlo|ocd, supply MV|off, jumper on|off)"
+        ),
     }
-    kept.magic = Kept::MAGIC;
-    kept.store();
 }
 
 /// I2C1 stand-in: I2C1 is never started (QEMU's I2C transfers hang), so its

@@ -276,7 +276,6 @@ pub const CONSOLE_SUPPLY_MAX_MV: u32 = 200_000;
 /// | `chip K ocd` | overcurrent at chip K |
 /// | `supply MV`, `supply off` | the ADC reads a motor supply of MV millivolts / the platform's own reading again |
 /// | `jumper on`, `jumper off` | a MOSI → MISO jumper on the I/O extension's port (it then reads back what it sends) |
-/// | `mcu reset` | the MCU resets; the simulated faults stay, as a broken chip stays broken |
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum ConsoleLine {
@@ -292,7 +291,6 @@ pub enum ConsoleLine {
     /// mV; `None`: the platform's own reading.
     Supply(Option<u32>),
     Jumper(bool),
-    McuReset,
 }
 
 impl ConsoleLine {
@@ -331,7 +329,6 @@ impl ConsoleLine {
             }
             ["jumper", "on"] => Some(ConsoleLine::Jumper(true)),
             ["jumper", "off"] => Some(ConsoleLine::Jumper(false)),
-            ["mcu", "reset"] => Some(ConsoleLine::McuReset),
             _ => None,
         }
     }
@@ -577,7 +574,7 @@ mod tests {
     }
 
     #[test]
-    fn console_lines_inject_chip_faults_supply_readings_a_jumper_and_a_reset() {
+    fn console_lines_inject_chip_faults_supply_readings_and_a_jumper() {
         use crate::sim::Fault;
         let parse = |l: &str| ConsoleLine::parse(l.as_bytes(), 16, 4);
         assert_eq!(
@@ -610,7 +607,6 @@ mod tests {
         assert_eq!(parse("supply off"), Some(ConsoleLine::Supply(None)));
         assert_eq!(parse("jumper on"), Some(ConsoleLine::Jumper(true)));
         assert_eq!(parse("jumper off"), Some(ConsoleLine::Jumper(false)));
-        assert_eq!(parse("mcu reset"), Some(ConsoleLine::McuReset));
         for bad in [
             "",
             "chip 4 dead",
@@ -623,7 +619,7 @@ mod tests {
             "supply 200001",
             "supply 12 V",
             "jumper maybe",
-            "mcu",
+            "mcu reset",
             "CHIP 1 reset",
         ] {
             assert_eq!(parse(bad), None, "{bad:?}");
