@@ -603,7 +603,7 @@ pub fn judge_other_buses(d: &[u16]) -> Check {
 /// The control tick: FAIL if none ran or the measured rate is off by more
 /// than half; WARN if it is off by more than `tolerance`, if more than
 /// `tolerance` of the ticks overran, or if none overran but the longest
-/// took 90 % of the period or more.
+/// took 90 % of the period (plus the tolerance) or more.
 pub fn judge_tick(d: &[u16], rate: Option<TickRate>, tolerance: f64) -> Check {
     let period = u32::from(word(d, diag::TICK_PERIOD_US));
     let max = dword(d, diag::TICK_MAX_US);
@@ -636,7 +636,7 @@ pub fn judge_tick(d: &[u16], rate: Option<TickRate>, tolerance: f64) -> Check {
     if off.is_some_and(|o| o > 0.5) {
         return check("control tick", Verdict::Fail, what, board);
     }
-    let close = overruns == 0 && u64::from(max) * 10 >= u64::from(period) * 9;
+    let close = overruns == 0 && f64::from(max) >= f64::from(period) * (0.9 + tolerance);
     if share > tolerance || close || off.is_some_and(|o| o > tolerance) {
         return check("control tick", Verdict::Warn, what, board);
     }
