@@ -22,6 +22,13 @@
 //!   is read-only here ([`ExtError::IllegalAddress`], Modbus 02): ABS_POS
 //!   (Set position / Set zero), EL_POS, MARK, SPEED, ACC, DEC, MAX_SPEED
 //!   (0x51–0x53), KVAL_* (the currents), ADC_OUT, STEP_MODE (0x33), STATUS.
+//!
+//! # Configured registers (0x07nn)
+//!
+//! What the bridge writes to each chip (`Axis::programmed`: the chip image,
+//! and MAX_SPEED/ACC/DEC as last written), with a mask of which registers
+//! those are and how many writes are still pending, so a master can compare
+//! intent with 0x01nn (`stepctl doctor` does).
 
 use super::{Bridge, Bus};
 use crate::ext_space::{axis, block, configured, diag, homing, watchdog, ExtError};
