@@ -148,7 +148,7 @@ fn a_write_to_0x0300_clears_the_counters() {
 fn diagnostics_are_read_only_except_the_clear() {
     let mut b = line();
     assert_eq!(b.write(1, 0x0302, 0), Err(2));
-    assert_eq!(b.read(1, 0x034A, 1), Err(2), "past the block");
+    assert_eq!(b.read(1, 0x0350, 1), Err(2), "past the block");
 }
 
 // -------------------------------------------------------------- watchdog ----

@@ -13,6 +13,12 @@
 //! | homing | 0x04nn | start/abort, state, result, parameters ([`homing`]) | axis |
 //! | watchdog | 0x05nn | communication watchdog per bus ([`watchdog`]) | bridge |
 //! | axis | 0x06nn | signed speed, position, target, state ([`axis`]) | axis |
+//! | configured | 0x07nn | what the bridge configures in chip register `nn`, and which registers it configures ([`configured`]) | axis |
+//!
+//! With no chip detected the bridge still answers on its first address (axis
+//! 0 of every bus): the bridge-scope blocks (I/O extension, diagnostics,
+//! watchdog) read and write as usual, so a box whose chain is not found can
+//! say so; everything of an axis is refused there.
 
 /// Why an extension access was not done.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -37,6 +43,7 @@ pub mod block {
     pub const HOMING: u8 = 0x04;
     pub const WATCHDOG: u8 = 0x05;
     pub const AXIS: u8 = 0x06;
+    pub const CONFIGURED: u8 = 0x07;
 }
 
 /// Diagnostics (0x03nn): u32 counters in two registers, high word first.
@@ -85,7 +92,22 @@ pub mod diag {
     /// asleep, 3 faulted, 4 ignored, 5 unsupported, 6 bad address, 7 busy,
     /// 8 boot mode); 0 none since the counters were cleared.
     pub const LAST_REFUSAL: u8 = 0x49;
-    pub const LEN: usize = 0x4A;
+    /// 0 the chain works, 1 its last control tick's batch failed, 2 dead
+    /// (failed for `bridge::CHAIN_DEAD_TICKS` ticks in a row: STBY held
+    /// low until the MCU resets), 3 not detected at boot (no axis).
+    pub const CHAIN_STATE: u8 = 0x4A;
+    /// The control tick's period in use, µs (the build's rate, or slower
+    /// when the chain does not fit it).
+    pub const TICK_PERIOD_US: u8 = 0x4B;
+    /// Control ticks run since the counters were cleared, u32 (with a host
+    /// clock: the measured tick rate).
+    pub const TICKS: u8 = 0x4C;
+    /// The motor supply as measured, in 0x10's units (72 mV); bridge-wide,
+    /// so it reads with no chip too.
+    pub const SUPPLY: u8 = 0x4E;
+    /// The temperature as measured, in 0x11's units (0.125 °C).
+    pub const TEMPERATURE: u8 = 0x4F;
+    pub const LEN: usize = 0x50;
 }
 
 /// Homing (0x04nn, per axis).
@@ -144,4 +166,28 @@ pub mod axis {
     /// The chip's STATUS as last read.
     pub const CHIP_STATUS: u8 = 0x09;
     pub const LEN: usize = 0x0A;
+}
+
+/// What the bridge configures on the chip of the addressed axis (0x07nn,
+/// per axis, read-only): the value it writes, not what the chip holds
+/// (0x01nn reads that), so the two can be compared.
+pub mod configured {
+    /// 0x07nn, nn = 0x01..=0x1B: the value the bridge configures for chip
+    /// register nn, right-aligned (every register the bridge configures is
+    /// at most 16 bits wide); 0 where it configures none ([`MASK`] says
+    /// which). STEP_MODE, CONFIG, the KVAL/TVAL currents, MIN_SPEED and the
+    /// tuning registers as the bridge's chip image holds them; MAX_SPEED,
+    /// ACC, DEC as last written to the chip (0 before the axis's set-up
+    /// wrote them).
+    pub const FIRST: u8 = 0x01;
+    pub const LAST: u8 = 0x1B;
+    /// u32, bit nn set: the bridge configures register nn.
+    pub const MASK: u8 = 0x20;
+    /// Configured registers the bridge has not yet written since the
+    /// chip's last reset or their last change (0: the chip should hold
+    /// every value of this block).
+    pub const PENDING: u8 = 0x22;
+    /// 1 once the axis's set-up is done (MAX_SPEED, ACC, DEC written).
+    pub const SET_UP: u8 = 0x23;
+    pub const LEN: usize = 0x24;
 }

@@ -157,4 +157,4 @@ pub mod vocab;
 
 pub use chain::SimChain;
 pub use chip::{Fault, HomeCam, Powerstep01, TICK_NS};
-pub use shift::{ConsoleCommand, Lines, ShiftChain};
+pub use shift::{ConsoleCommand, ConsoleLine, Lines, ShiftChain};

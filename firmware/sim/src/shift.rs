@@ -256,6 +256,94 @@ impl ConsoleCommand {
     }
 }
 
+/// Highest supply a `supply MV` line takes, mV.
+pub const CONSOLE_SUPPLY_MAX_MV: u32 = 200_000;
+
+/// A line of the QEMU image's test console (its first `-serial`): the
+/// I/O-extension buttons ([`ConsoleCommand`]) and the faults injected into
+/// the simulated hardware, so the bring-up checks (`stepctl doctor`) can be
+/// tested with no board.
+///
+/// | line | what |
+/// |---|---|
+/// | `press N`, `release N` | I/O-extension input N closed / open |
+/// | `chip K dead [HH]` | chip K (0 = the first axis) stops working: its SDO stuck at byte HH (hex, default FF), input ignored |
+/// | `chip K revive` | undo `dead` |
+/// | `chip K reset` | a power cycle of chip K: registers at their reset values, UVLO flagged |
+/// | `chip K uvlo` | undervoltage lockout at chip K (a supply dip): bridges off |
+/// | `chip K ocd` | overcurrent at chip K |
+/// | `supply MV`, `supply off` | the ADC reads a motor supply of MV millivolts / the platform's own reading again |
+/// | `jumper on`, `jumper off` | a MOSI → MISO jumper on the I/O extension's port (it then reads back what it sends) |
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ConsoleLine {
+    Input(ConsoleCommand),
+    ChipDead {
+        chip: usize,
+        stuck: u8,
+    },
+    ChipRevive(usize),
+    ChipReset(usize),
+    ChipUvlo(usize),
+    ChipOvercurrent(usize),
+    /// mV; `None`: the platform's own reading.
+    Supply(Option<u32>),
+    Jumper(bool),
+}
+
+impl ConsoleLine {
+    /// The line (ASCII, words separated by blanks), or `None` for anything
+    /// else: an input at or past `inputs`, a chip at or past `chips`, a
+    /// supply above [`CONSOLE_SUPPLY_MAX_MV`].
+    pub fn parse(line: &[u8], inputs: usize, chips: usize) -> Option<ConsoleLine> {
+        if let Some(c) = ConsoleCommand::parse(line, inputs) {
+            return Some(ConsoleLine::Input(c));
+        }
+        let text = core::str::from_utf8(line).ok()?;
+        let mut w = [""; 4];
+        let mut n = 0;
+        for word in text.split_ascii_whitespace() {
+            *w.get_mut(n)? = word;
+            n += 1;
+        }
+        let chip = |k: &str| k.parse::<usize>().ok().filter(|k| *k < chips);
+        match &w[..n] {
+            ["chip", k, "dead"] => Some(ConsoleLine::ChipDead {
+                chip: chip(k)?,
+                stuck: 0xFF,
+            }),
+            ["chip", k, "dead", hh] => Some(ConsoleLine::ChipDead {
+                chip: chip(k)?,
+                stuck: u8::from_str_radix(hh, 16).ok()?,
+            }),
+            ["chip", k, "revive"] => Some(ConsoleLine::ChipRevive(chip(k)?)),
+            ["chip", k, "reset"] => Some(ConsoleLine::ChipReset(chip(k)?)),
+            ["chip", k, "uvlo"] => Some(ConsoleLine::ChipUvlo(chip(k)?)),
+            ["chip", k, "ocd"] => Some(ConsoleLine::ChipOvercurrent(chip(k)?)),
+            ["supply", "off"] => Some(ConsoleLine::Supply(None)),
+            ["supply", mv] => {
+                let mv: u32 = mv.parse().ok().filter(|v| *v <= CONSOLE_SUPPLY_MAX_MV)?;
+                Some(ConsoleLine::Supply(Some(mv)))
+            }
+            ["jumper", "on"] => Some(ConsoleLine::Jumper(true)),
+            ["jumper", "off"] => Some(ConsoleLine::Jumper(false)),
+            _ => None,
+        }
+    }
+
+    /// The fault a `chip` line injects into its chip.
+    pub fn chip_fault(&self) -> Option<(usize, super::Fault)> {
+        use super::Fault;
+        Some(match *self {
+            ConsoleLine::ChipDead { chip, stuck } => (chip, Fault::Dead(stuck)),
+            ConsoleLine::ChipRevive(chip) => (chip, Fault::Revive),
+            ConsoleLine::ChipReset(chip) => (chip, Fault::PowerCycle),
+            ConsoleLine::ChipUvlo(chip) => (chip, Fault::Uvlo),
+            ConsoleLine::ChipOvercurrent(chip) => (chip, Fault::Overcurrent),
+            _ => return None,
+        })
+    }
+}
+
 impl ShiftChain {
     /// Apply a console command to the inputs (pull-up: closed reads 0).
     pub fn apply(&mut self, command: ConsoleCommand) {
@@ -551,5 +639,72 @@ mod tests {
             closed: false,
         });
         assert_eq!(run(&mut chain, &zeros, MODE0), [true; 16]);
+    }
+
+    #[test]
+    fn console_lines_inject_chip_faults_supply_readings_and_a_jumper() {
+        use crate::Fault;
+        let parse = |l: &str| ConsoleLine::parse(l.as_bytes(), 16, 4);
+        assert_eq!(
+            parse("press 3"),
+            Some(ConsoleLine::Input(ConsoleCommand {
+                bit: 3,
+                closed: true
+            }))
+        );
+        assert_eq!(
+            parse("chip 2 dead"),
+            Some(ConsoleLine::ChipDead {
+                chip: 2,
+                stuck: 0xFF
+            })
+        );
+        assert_eq!(
+            parse(" chip 0  dead 00 "),
+            Some(ConsoleLine::ChipDead { chip: 0, stuck: 0 })
+        );
+        assert_eq!(parse("chip 3 revive"), Some(ConsoleLine::ChipRevive(3)));
+        assert_eq!(parse("chip 1 reset"), Some(ConsoleLine::ChipReset(1)));
+        assert_eq!(parse("chip 1 uvlo"), Some(ConsoleLine::ChipUvlo(1)));
+        assert_eq!(parse("chip 1 ocd"), Some(ConsoleLine::ChipOvercurrent(1)));
+        assert_eq!(
+            parse("supply 12000"),
+            Some(ConsoleLine::Supply(Some(12_000)))
+        );
+        assert_eq!(parse("supply 0"), Some(ConsoleLine::Supply(Some(0))));
+        assert_eq!(parse("supply off"), Some(ConsoleLine::Supply(None)));
+        assert_eq!(parse("jumper on"), Some(ConsoleLine::Jumper(true)));
+        assert_eq!(parse("jumper off"), Some(ConsoleLine::Jumper(false)));
+        for bad in [
+            "",
+            "chip 4 dead",
+            "chip x reset",
+            "chip 1",
+            "chip 1 explode",
+            "chip 1 dead 100",
+            "chip 1 dead FF extra",
+            "supply -1",
+            "supply 200001",
+            "supply 12 V",
+            "jumper maybe",
+            "mcu reset",
+            "CHIP 1 reset",
+        ] {
+            assert_eq!(parse(bad), None, "{bad:?}");
+        }
+        assert_eq!(ConsoleLine::parse(&[0xFF, b' ', b'1'], 16, 4), None);
+        assert_eq!(
+            parse("chip 2 dead 5A").and_then(|l| l.chip_fault()),
+            Some((2, Fault::Dead(0x5A)))
+        );
+        assert_eq!(
+            parse("chip 1 reset").and_then(|l| l.chip_fault()),
+            Some((1, Fault::PowerCycle))
+        );
+        assert_eq!(
+            parse("chip 1 ocd").and_then(|l| l.chip_fault()),
+            Some((1, Fault::Overcurrent))
+        );
+        assert_eq!(parse("supply 9000").and_then(|l| l.chip_fault()), None);
     }
 }

@@ -44,11 +44,25 @@
 //!   simulated 74HC165/74HC595 chain of `stepbridge-sim` ([`IOEXT_165`] '165s,
 //!   [`IOEXT_595`] '595) at once, instead of SPI2/TIM1/DMA (QEMU 7.2's
 //!   STM32F405 has no DMA controller and no TIM1). Its inputs are buttons
-//!   with pull-ups, all open at boot; the test hook is a console on USART1
-//!   (QEMU's first `-serial`, `QEMU_CONSOLE` in `scripts/qemu-run`) that
-//!   takes lines `press N` / `release N` (N = receive bit 0..15 in wire
-//!   order: press closes the contact, the bit reads 0), polled at every
-//!   transfer and logged (`ioext console: …`).
+//!   with pull-ups, all open at boot; `press N` / `release N` on the test
+//!   console (below) close and open them (N = receive bit 0..15 in wire
+//!   order: press closes the contact, the bit reads 0), logged as
+//!   `ioext console: …`.
+//! * **Test console and fault injection**: USART1 (QEMU's first `-serial`,
+//!   `QEMU_CONSOLE` in `scripts/qemu-run`) takes the lines of
+//!   `sim::ConsoleLine`, read at every control tick ([`TickTimer::acknowledge`],
+//!   the tick's first step) and logged (`sim console: …`): the buttons
+//!   above, and faults of the simulated hardware for the bring-up checks
+//!   (`stepctl doctor`): `chip K dead [HH]` / `revive` / `reset` / `uvlo` /
+//!   `ocd` (handed to [`ChainDriver`], applied before its next window),
+//!   `supply MV` / `supply off` (what [`Analog`] reports), `jumper on` /
+//!   `off` (a MOSI → MISO jumper on the I/O extension's port). The same
+//!   lines in the host file `<settings flash file>.boot`, if there is one,
+//!   are applied at boot before the chain is detected ([`chain_driver`]):
+//!   a chip dead at power-up (`chip 1 dead`) leaves a chain the detection
+//!   cannot measure. (Not an MCU reset on the console: after QEMU 7.2's
+//!   system reset its TIM2 model adds the time of the reset to every
+//!   period, so the control tick would crawl.)
 //! * **Faults**: a HardFault (also the end of the panic handler, after its
 //!   message) exits QEMU with status 1, so a crash fails a run instead of
 //!   hanging it.
@@ -62,9 +76,10 @@ use bridge_logic::postep60::analog::AnalogSample;
 use bridge_logic::powerstep::chain::{clock_windows, Frames, Plan};
 use bridge_logic::powerstep::ChainBus;
 use bridge_logic::transport::i2c::{I2cSlave, I2cTarget};
+use core::sync::atomic::{AtomicBool, AtomicU16, AtomicU32, Ordering};
 use defmt_semihosting as _;
 use drivers_core::iwdg::WindowError;
-use stepbridge_sim::{ConsoleCommand, HomeCam, Lines, ShiftChain, SimChain};
+use stepbridge_sim::{ConsoleLine, Fault, HomeCam, Lines, ShiftChain, SimChain};
 use stm32f4xx_hal::pac;
 use stm32f4xx_hal::rcc::{Config, Enable, Rcc, RccExt, Reset};
 
@@ -145,6 +160,8 @@ pub struct TickTimer {
     period: u32,
     /// CNT at the next deadline.
     next: u32,
+    /// The test console, read at every tick.
+    console: Console,
 }
 
 /// A deadline closer than this (ns) when the tick is served is lost
@@ -160,6 +177,7 @@ impl TickTimer {
             tim,
             period: 0,
             next: 0,
+            console: Console::start(rcc),
         }
     }
 
@@ -188,7 +206,14 @@ impl TickTimer {
     /// the next deadline goes there: ticks stay on their phase, and a
     /// tick served more than a period late loses the deadlines it missed,
     /// as a board's timer does (one pending update flag).
+    ///
+    /// Then the test console's new lines (module docs).
     pub fn acknowledge(&mut self) {
+        self.arm_next();
+        self.console.poll();
+    }
+
+    fn arm_next(&mut self) {
         let tim = &self.tim;
         tim.sr().write(|w| w.uif().clear_bit());
         if self.period == 0 {
@@ -272,6 +297,7 @@ impl ChainBus for Chips {
     type Error = ChainSpiError;
 
     fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), ChainSpiError> {
+        take_chip_faults(&mut self.chain);
         let now = self.clock.now_ns();
         let elapsed_ns = now.saturating_sub(self.last_ns);
         self.last_ns = now;
@@ -370,6 +396,9 @@ pub fn chain_driver(
     rcc: &mut Rcc,
 ) -> ChainLink {
     let mut chain = SimChain::new(AXES);
+    // Faults present at power-up: the boot file's console lines.
+    flash::boot_lines(|line| apply(ConsoleLine::parse(line, IOEXT_165 * 8, AXES), line.len()));
+    take_chip_faults(&mut chain);
     // The last axis has a home switch: a cam on its shaft presses SW below
     // HOME_CAM_EDGE microsteps (the end-to-end test homes it over Modbus).
     if let Some(chip) = chain.device_mut(AXES - 1) {
@@ -399,20 +428,16 @@ pub const HOME_CAM_EDGE: i64 = -3_200;
 pub const IOEXT_165: usize = 2;
 /// 74HC595s (8 lamps) on the simulated I/O extension port.
 pub const IOEXT_595: usize = 1;
-/// Longest console line (`release 255` and some slack).
-const CONSOLE_LINE: usize = 24;
-
-/// The I/O extension's port under QEMU: the simulated shift registers and
-/// the USART1 console that presses their buttons (module docs).
+/// The I/O extension's port under QEMU: the simulated shift registers,
+/// whose buttons the test console presses (module docs).
 pub struct IoExtDriver {
     chain: ShiftChain,
-    console: pac::USART1,
-    line: [u8; CONSOLE_LINE],
-    len: usize,
+    /// The console's closed inputs as last applied.
+    closed: u32,
 }
 
 /// The simulated port instead of SPI2/TIM1/DMA (which, and whose pins,
-/// stay as `board::configure` left them); USART1 becomes the console.
+/// stay as `board::configure` left them).
 #[allow(clippy::too_many_arguments)]
 pub fn ioext_driver(
     _spi: IoExtSpi,
@@ -422,32 +447,34 @@ pub fn ioext_driver(
     _pins: (IoExtSck, IoExtMiso, IoExtMosi),
     _cs: IoExtCs,
     _bufs: &'static mut IoExtBuffers,
-    rcc: &mut Rcc,
+    _rcc: &mut Rcc,
 ) -> IoExtDriver {
-    // SAFETY: nothing else in the firmware uses USART1 (the app never takes
-    // it out of `pac::Peripherals`); from here on this console owns it.
-    let console = unsafe { pac::USART1::steal() };
-    pac::USART1::enable(rcc);
-    // Receive only; QEMU ignores the baud rate.
-    console.cr1().write(|w| w.ue().set_bit().re().set_bit());
     let mut chain = ShiftChain::new(IOEXT_165, IOEXT_595);
     // Pull-ups, every contact open.
     for i in 0..IOEXT_165 * 8 {
         chain.set_rx_bit(i, true);
     }
-    IoExtDriver {
-        chain,
-        console,
-        line: [0; CONSOLE_LINE],
-        len: 0,
-    }
+    IoExtDriver { chain, closed: 0 }
 }
 
 impl IoExtDriver {
     /// Run the action on the simulated chain: a transfer ends at once.
     pub fn run(&mut self, action: &Action) -> Started {
-        self.poll_console();
+        let closed = INPUTS_CLOSED.load(Ordering::Relaxed);
+        if closed != self.closed {
+            for i in 0..IOEXT_165 * 8 {
+                if (closed ^ self.closed) & 1 << i != 0 {
+                    self.chain.set_rx_bit(i, closed & 1 << i == 0);
+                }
+            }
+            self.closed = closed;
+        }
         match action {
+            // MISO jumpered to MOSI: what goes out comes back.
+            Action::Transfer(plan) if JUMPER.load(Ordering::Relaxed) => {
+                self.transfer(plan);
+                Started::Ended(Ok(plan.tx))
+            }
             Action::Transfer(plan) => Started::Ended(Ok(self.transfer(plan))),
             Action::Disable => Started::Released,
         }
@@ -486,48 +513,11 @@ impl IoExtDriver {
     pub fn chain(&self) -> &ShiftChain {
         &self.chain
     }
-
-    /// Take every byte USART1 has (QEMU holds the rest back until DR is
-    /// read, so none is lost between polls) and act on complete lines.
-    fn poll_console(&mut self) {
-        while self.console.sr().read().rxne().bit_is_set() {
-            let byte = self.console.dr().read().dr().bits() as u8;
-            match byte {
-                b'\n' | b'\r' => {
-                    let len = core::mem::take(&mut self.len);
-                    let line = self.line.get(..len).unwrap_or(&[]);
-                    let command = ConsoleCommand::parse(line, IOEXT_165 * 8);
-                    self.apply(command, len);
-                }
-                _ => {
-                    if let Some(slot) = self.line.get_mut(self.len) {
-                        *slot = byte;
-                        self.len += 1;
-                    }
-                }
-            }
-        }
-    }
-
-    fn apply(&mut self, command: Option<ConsoleCommand>, len: usize) {
-        match command {
-            Some(c) => {
-                self.chain.apply(c);
-                defmt::info!(
-                    "ioext console: input {=usize} {=str}",
-                    c.bit,
-                    if c.closed { "closed" } else { "open" }
-                );
-            }
-            None if len == 0 => {}
-            None => defmt::warn!("ioext console: unknown line (want press N / release N)"),
-        }
-    }
 }
 
 /// ADC1 stand-in: constant samples of a 24 V supply and a 25 °C die (at
-/// VDDA = 3.3 V, with the reference board's ÷20 divider). The ADC and its
-/// pin stay untouched.
+/// VDDA = 3.3 V, with the reference board's ÷20 divider), or the supply the
+/// test console set (`supply MV`). The ADC and its pin stay untouched.
 pub struct Analog;
 
 impl Analog {
@@ -543,7 +533,177 @@ impl Analog {
     }
 
     pub fn sample(&mut self) -> AnalogSample {
-        Self::SAMPLE
+        let mut s = Self::SAMPLE;
+        let mv = SUPPLY_MV.load(Ordering::Relaxed);
+        if mv != SUPPLY_OWN {
+            s.supply = supply_counts(mv, s.vrefint);
+        }
+        s
+    }
+}
+
+/// The ADC counts of a motor supply of `mv` behind the ÷20 divider, at the
+/// VDDA that `vrefint` counts of VREFINT (1.21 V) mean: pin µV · vrefint /
+/// 1.21 V, rounded, at most full scale.
+fn supply_counts(mv: u32, vrefint: u16) -> u16 {
+    let pin_uv = u64::from(mv) * 1000 / 20;
+    let counts = (pin_uv * u64::from(vrefint) + 605_000) / 1_210_000;
+    counts.min(4095) as u16
+}
+
+// ---------------------------------------------------------------- console
+
+/// `SUPPLY_MV` when no `supply MV` line is in force.
+const SUPPLY_OWN: u32 = u32::MAX;
+/// The supply the console set, mV (read by `housekeeping`'s [`Analog`]).
+static SUPPLY_MV: AtomicU32 = AtomicU32::new(SUPPLY_OWN);
+/// The I/O extension's MOSI is jumpered to MISO (read by `ioext_run`).
+static JUMPER: AtomicBool = AtomicBool::new(false);
+/// Inputs the console closed, bit i = receive bit i (read by `ioext_run`).
+static INPUTS_CLOSED: AtomicU32 = AtomicU32::new(0);
+/// A fault for chip k that [`ChainDriver`] has not yet applied: 0 none, else
+/// [`fault_code`]. Written by the console (control tick), taken before
+/// every chain window (also the control tick, and `init`).
+static CHIP_FAULTS: [AtomicU16; AXES] = [const { AtomicU16::new(0) }; AXES];
+
+fn fault_code(f: Fault) -> u16 {
+    match f {
+        Fault::Dead(stuck) => 1 | u16::from(stuck) << 8,
+        Fault::Revive => 2,
+        Fault::PowerCycle => 3,
+        Fault::Uvlo => 4,
+        Fault::Overcurrent => 5,
+        _ => 0,
+    }
+}
+
+fn fault_of(code: u16) -> Option<Fault> {
+    Some(match code & 0xFF {
+        1 => Fault::Dead((code >> 8) as u8),
+        2 => Fault::Revive,
+        3 => Fault::PowerCycle,
+        4 => Fault::Uvlo,
+        5 => Fault::Overcurrent,
+        _ => return None,
+    })
+}
+
+/// Apply the faults the console handed over.
+fn take_chip_faults(chain: &mut SimChain) {
+    for (k, slot) in CHIP_FAULTS.iter().enumerate() {
+        if slot.load(Ordering::Relaxed) == 0 {
+            continue;
+        }
+        if let (Some(f), Some(chip)) = (
+            fault_of(slot.swap(0, Ordering::Relaxed)),
+            chain.device_mut(k),
+        ) {
+            chip.inject(f);
+        }
+    }
+}
+
+/// Longest console line (`chip 7 dead FF`, `supply 200000` and some slack).
+const CONSOLE_LINE: usize = 24;
+
+/// The test console on USART1 (module docs).
+struct Console {
+    usart: pac::USART1,
+    line: [u8; CONSOLE_LINE],
+    len: usize,
+}
+
+impl Console {
+    fn start(rcc: &mut Rcc) -> Console {
+        // SAFETY: nothing else in the firmware uses USART1 (the app never
+        // takes it out of `pac::Peripherals`); from here on this console
+        // owns it.
+        let usart = unsafe { pac::USART1::steal() };
+        pac::USART1::enable(rcc);
+        // Receive only; QEMU ignores the baud rate.
+        usart.cr1().write(|w| w.ue().set_bit().re().set_bit());
+        Console {
+            usart,
+            line: [0; CONSOLE_LINE],
+            len: 0,
+        }
+    }
+
+    /// Take every byte USART1 has (QEMU holds the rest back until DR is
+    /// read, so none is lost between polls) and act on complete lines.
+    fn poll(&mut self) {
+        while self.usart.sr().read().rxne().bit_is_set() {
+            let byte = self.usart.dr().read().dr().bits() as u8;
+            match byte {
+                b'\n' | b'\r' => {
+                    let len = core::mem::take(&mut self.len);
+                    let line = self.line.get(..len).unwrap_or(&[]);
+                    let parsed = ConsoleLine::parse(line, IOEXT_165 * 8, AXES);
+                    apply(parsed, len);
+                }
+                _ => {
+                    if let Some(slot) = self.line.get_mut(self.len) {
+                        *slot = byte;
+                        self.len += 1;
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Act on one console line.
+fn apply(line: Option<ConsoleLine>, len: usize) {
+    match line {
+        Some(ConsoleLine::Input(c)) => {
+            let bit = 1u32 << c.bit;
+            if c.closed {
+                INPUTS_CLOSED.fetch_or(bit, Ordering::Relaxed);
+            } else {
+                INPUTS_CLOSED.fetch_and(!bit, Ordering::Relaxed);
+            }
+            defmt::info!(
+                "ioext console: input {=usize} {=str}",
+                c.bit,
+                if c.closed { "closed" } else { "open" }
+            );
+        }
+        Some(ConsoleLine::Supply(mv)) => {
+            let mv = mv.unwrap_or(SUPPLY_OWN);
+            SUPPLY_MV.store(mv, Ordering::Relaxed);
+            if mv == SUPPLY_OWN {
+                defmt::info!("sim console: supply back to the fixed 24 V reading");
+            } else {
+                defmt::info!("sim console: supply reads {=u32} mV", mv);
+            }
+        }
+        Some(ConsoleLine::Jumper(on)) => {
+            JUMPER.store(on, Ordering::Relaxed);
+            defmt::info!(
+                "sim console: I/O extension MOSI -> MISO jumper {=str}",
+                if on { "on" } else { "off" }
+            );
+        }
+        Some(l) => {
+            let Some((k, f)) = l.chip_fault() else {
+                return;
+            };
+            if let Some(slot) = CHIP_FAULTS.get(k) {
+                slot.store(fault_code(f), Ordering::Relaxed);
+            }
+            let what = match l {
+                ConsoleLine::ChipDead { .. } => "dead",
+                ConsoleLine::ChipRevive(_) => "revived",
+                ConsoleLine::ChipReset(_) => "reset",
+                ConsoleLine::ChipUvlo(_) => "undervoltage",
+                _ => "overcurrent",
+            };
+            defmt::info!("sim console: chip {=usize}: {=str}", k, what);
+        }
+        None if len == 0 => {}
+        None => defmt::warn!(
+            "sim console: unknown line (press N, release N, chip K dead|revive|reset|uvlo|ocd, supply MV|off, jumper on|off)"
+        ),
     }
 }
 

@@ -206,16 +206,48 @@ fn read_up_to(file: &mut File, buf: &mut [u8]) -> usize {
 
 /// The `flash=PATH` semihosting argument, NUL-terminated in `buf`.
 fn flash_path(buf: &mut [u8; PATH_MAX + 1]) -> Option<&CStr> {
+    flash_path_with(buf, b"")
+}
+
+/// The `flash=PATH` semihosting argument followed by `suffix`,
+/// NUL-terminated in `buf`.
+fn flash_path_with<'a>(buf: &'a mut [u8; PATH_MAX + 1], suffix: &[u8]) -> Option<&'a CStr> {
     let args = semihosting::experimental::env::args::<{ PATH_MAX + 64 }>().ok()?;
     let path = (&args)
         .filter_map(Result::ok)
         .find_map(|arg| arg.strip_prefix("flash="))?
         .as_bytes();
-    let slot = buf.get_mut(..path.len())?;
-    if path.is_empty() || path.contains(&0) || path.len() > PATH_MAX {
+    let len = path.len() + suffix.len();
+    if path.is_empty() || path.contains(&0) || len > PATH_MAX {
         return None;
     }
-    slot.copy_from_slice(path);
-    *buf.get_mut(path.len())? = 0;
+    buf.get_mut(..path.len())?.copy_from_slice(path);
+    buf.get_mut(path.len()..len)?.copy_from_slice(suffix);
+    *buf.get_mut(len)? = 0;
     CStr::from_bytes_until_nul(buf).ok()
+}
+
+/// Longest boot file read, bytes.
+const BOOT_FILE_MAX: usize = 512;
+
+/// Each line of the host file `<flash PATH>.boot`, if there is one: the
+/// test console's lines applied at boot (`platform::qemu`, module docs).
+pub fn boot_lines(mut each: impl FnMut(&[u8])) {
+    let mut path = [0u8; PATH_MAX + 1];
+    let Some(path) = flash_path_with(&mut path, b".boot") else {
+        return;
+    };
+    let Ok(mut file) = File::open(path) else {
+        return;
+    };
+    let mut text = [0u8; BOOT_FILE_MAX];
+    let n = read_up_to(&mut file, &mut text);
+    defmt::info!(
+        "sim: boot file {=str} ({=usize} bytes)",
+        path.to_str().unwrap_or("?"),
+        n
+    );
+    for line in text.get(..n).unwrap_or(&[]).split(|b| *b == b'\n') {
+        each(line.strip_suffix(b"\r").unwrap_or(line));
+    }
 }

@@ -20,6 +20,8 @@ use crate::settings::{self, Change, SettingsFile};
 pub struct Output {
     pub text: String,
     pub json: Value,
+    /// The exit status after printing (0, or `exit::DOCTOR_FAIL`).
+    pub code: i32,
 }
 
 impl Output {
@@ -27,6 +29,7 @@ impl Output {
         Output {
             text: text.into(),
             json,
+            code: 0,
         }
     }
 }
@@ -145,7 +148,69 @@ pub fn run(ctx: &mut Ctx, cmd: &Command) -> Result<Output> {
             values,
             count,
         } => raw(ctx, *axis, *command, values, *count),
+        Command::Doctor {
+            expect_axes,
+            supply,
+            loopback,
+            seconds,
+            tick_tolerance,
+        } => doctor(
+            ctx,
+            *expect_axes,
+            *supply,
+            *loopback,
+            *seconds,
+            *tick_tolerance,
+        ),
     }
+}
+
+fn doctor(
+    ctx: &mut Ctx,
+    expect_axes: Option<u16>,
+    supply: f64,
+    loopback: bool,
+    seconds: f64,
+    tick_tolerance: f64,
+) -> Result<Output> {
+    use crate::doctor::{self, Expect, Options};
+    if !(1.0..=1000.0).contains(&supply) {
+        return Err(Error::Usage(format!(
+            "--supply {supply}: a nominal supply in V, 1..=1000"
+        )));
+    }
+    if !(0.0..=100.0).contains(&tick_tolerance) {
+        return Err(Error::Usage(format!(
+            "--tick-tolerance {tick_tolerance}: a percentage, 0..=100"
+        )));
+    }
+    let opts = Options {
+        first_id: ctx.first_id,
+        loopback,
+        seconds,
+    };
+    let expect = Expect {
+        axes: expect_axes,
+        supply_v: supply,
+        tick_tolerance: tick_tolerance / 100.0,
+    };
+    let checks = doctor::run(ctx.bus, &opts, &expect)?;
+    let (ok, warn, fail) = doctor::summary(&checks);
+    let code = if fail > 0 {
+        crate::error::exit::DOCTOR_FAIL
+    } else {
+        0
+    };
+    Ok(Output {
+        text: doctor::text(&checks),
+        json: json!({
+            "bus": ctx.bus.name(),
+            "checks": checks,
+            "summary": { "ok": ok, "warn": warn, "fail": fail },
+            "exit_code": code,
+        }),
+        code,
+    })
 }
 
 fn list(axes: &[u8]) -> String {

@@ -18,7 +18,8 @@ pub const DEFAULT_TCP: &str = "127.0.0.1:5020";
     after_help = "AXIS is the Modbus id of the axis (factory: 1 = first axis); over USB 1 = first axis.\n\
                   With no --port/--tcp/--usb stepctl talks to `cargo qemu` at tcp 127.0.0.1:5020.\n\
                   Exit codes: 0 ok, 1 usage or value out of range, 2 communication, 3 device refused \
-                  (Modbus exception / USB status), 4 fault or stop during a wait, 5 wait timed out."
+                  (Modbus exception / USB status), 4 fault or stop during a wait, 5 wait timed out, \
+                  6 a doctor check failed."
 )]
 pub struct Cli {
     #[command(flatten)]
@@ -255,6 +256,30 @@ pub enum Command {
         #[arg(long = "move", allow_negative_numbers = true, value_name = "POS")]
         move_to: Option<i32>,
     },
+    /// Bring-up checks: chain, each chip's STATUS and registers against what
+    /// the bridge wrote, supply, temperature, settings store, reset cause,
+    /// bus errors, tick rate; OK / WARN / FAIL with what to check on the
+    /// board. Exit 6 if any check fails.
+    Doctor {
+        /// Chips the chain should have (a different count fails).
+        #[arg(long, value_parser = clap::value_parser!(u16).range(1..=8))]
+        expect_axes: Option<u16>,
+        /// The board's nominal motor supply, V (the reference board: 24).
+        #[arg(long, default_value_t = 24.0)]
+        supply: f64,
+        /// Also run a transfer through the I/O extension and compare it
+        /// (needs a MOSI → MISO jumper, PB15 → PB14, and no panel mapping).
+        #[arg(long)]
+        loopback: bool,
+        /// Measure the tick rate over at least this long, s.
+        #[arg(long, default_value_t = 1.0)]
+        seconds: f64,
+        /// How far the measured tick rate may be off, and which share of
+        /// ticks may overrun, %, before the tick is a WARN (QEMU on a busy
+        /// host loses ticks: the end-to-end test passes 50).
+        #[arg(long, default_value_t = crate::doctor::TICK_TOLERANCE_PERCENT)]
+        tick_tolerance: f64,
+    },
     /// Send a raw PoStep60 command (register 0x00nn = command nn, or an
     /// extension address) and print the reply. No VALUES: read COUNT
     /// registers (the command's own count by default). Over USB: COMMAND is
@@ -467,6 +492,39 @@ mod tests {
                 .command,
             Command::Settings(SettingsCmd::Set { axis: 1, .. })
         ));
+    }
+
+    #[test]
+    fn doctor_takes_the_expected_axes_a_nominal_supply_and_the_loopback() {
+        match parse(&[
+            "doctor",
+            "--expect-axes",
+            "4",
+            "--loopback",
+            "--supply",
+            "48",
+            "--json",
+        ])
+        .unwrap()
+        .command
+        {
+            Command::Doctor {
+                expect_axes,
+                supply,
+                loopback,
+                seconds,
+                tick_tolerance,
+            } => {
+                assert_eq!((expect_axes, supply, loopback), (Some(4), 48.0, true));
+                assert_eq!((seconds, tick_tolerance), (1.0, 2.0));
+            }
+            other => panic!("{other:?}"),
+        }
+        assert!(
+            parse(&["doctor", "--expect-axes", "9"]).is_err(),
+            "at most 8 chips"
+        );
+        assert!(parse(&["doctor", "--expect-axes", "0"]).is_err());
     }
 
     #[test]

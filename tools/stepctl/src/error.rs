@@ -15,6 +15,8 @@ pub mod exit {
     pub const FAULT: i32 = 4;
     /// A wait (move, home) did not end within its timeout.
     pub const TIMEOUT: i32 = 5;
+    /// `stepctl doctor`: at least one check failed.
+    pub const DOCTOR_FAIL: i32 = 6;
 }
 
 /// The meaning of a Modbus exception code (README "Modbus register map").

@@ -2,12 +2,13 @@
 //!
 //! Layers: [`modbus`] and [`usb`] carry registers of the box's Modbus map
 //! ([`bus::Bus`]); [`ops`] and [`settings`] know what the registers mean;
-//! [`app`] is every command; [`cli`] the command line. `main.rs` only opens
+//! [`doctor`] judges a box for bring-up; [`app`] is every command; [`cli`] the command line. `main.rs` only opens
 //! the transport, runs the command and maps errors to exit codes.
 
 pub mod app;
 pub mod bus;
 pub mod cli;
+pub mod doctor;
 pub mod error;
 pub mod modbus;
 pub mod ops;

@@ -22,9 +22,16 @@
 //!   is read-only here ([`ExtError::IllegalAddress`], Modbus 02): ABS_POS
 //!   (Set position / Set zero), EL_POS, MARK, SPEED, ACC, DEC, MAX_SPEED
 //!   (0x51–0x53), KVAL_* (the currents), ADC_OUT, STEP_MODE (0x33), STATUS.
+//!
+//! # Configured registers (0x07nn)
+//!
+//! What the bridge writes to each chip (`Axis::programmed`: the chip image,
+//! and MAX_SPEED/ACC/DEC as last written), with a mask of which registers
+//! those are and how many writes are still pending, so a master can compare
+//! intent with 0x01nn (`stepctl doctor` does).
 
 use super::{Bridge, Bus};
-use crate::ext_space::{axis, block, diag, homing, watchdog, ExtError};
+use crate::ext_space::{axis, block, configured, diag, homing, watchdog, ExtError};
 use crate::motion::AxisState;
 use crate::postep60::settings::{Watchdog, WatchdogAction, TUNABLE, WATCHED_BUSES};
 use crate::postep60::{Query, Value};
@@ -81,6 +88,7 @@ impl<B: ChainBus> Bridge<B> {
             block::HOMING => copy_out(&self.homing_block(k)?, offset, out),
             block::WATCHDOG => copy_out(&self.watchdog_block(), offset, out),
             block::AXIS => copy_out(&self.axis_block(k)?, offset, out),
+            block::CONFIGURED => copy_out(&self.configured_block(k)?, offset, out),
             _ => Err(ExtError::IllegalAddress),
         }
     }
@@ -199,6 +207,7 @@ impl<B: ChainBus> Bridge<B> {
             (diag::TICK_LAST_US, self.timing.last_us),
             (diag::TICK_MAX_US, self.timing.max_us),
             (diag::TICK_OVERRUNS, self.timing.overruns),
+            (diag::TICKS, self.timing.ticks),
         ];
         for (at, v) in counters {
             put32(&mut r, at, v);
@@ -232,6 +241,13 @@ impl<B: ChainBus> Bridge<B> {
                     self.last_save
                 },
             ),
+            (diag::CHAIN_STATE, self.chain_state()),
+            (
+                diag::TICK_PERIOD_US,
+                self.timing.period_us.min(0xFFFF) as u16,
+            ),
+            (diag::SUPPLY, self.supply),
+            (diag::TEMPERATURE, self.temperature),
             (
                 diag::LAST_REFUSAL,
                 self.last_refusal
@@ -412,6 +428,28 @@ impl<B: ChainBus> Bridge<B> {
         );
         put16(&mut r, axis::FAULTS, u16::from(d.faults()));
         put16(&mut r, axis::CHIP_STATUS, a.status().raw());
+        Ok(r)
+    }
+
+    /// 0x07nn: what the bridge configures on axis `k`'s chip.
+    fn configured_block(&self, k: usize) -> Result<[u16; configured::LEN], ExtError> {
+        let a = self.group.axis(k).ok_or(ExtError::IllegalAddress)?;
+        let mut r = [0u16; configured::LEN];
+        let mut mask = 0u32;
+        for reg in Register::all() {
+            if let Some(v) = a.programmed(reg) {
+                // Every configured register is at most 16 bits wide.
+                put16(&mut r, reg.address(), v.min(0xFFFF) as u16);
+                mask |= 1 << reg.address();
+            }
+        }
+        put32(&mut r, configured::MASK, mask);
+        put16(
+            &mut r,
+            configured::PENDING,
+            a.chip_image().pending().min(0xFFFF) as u16,
+        );
+        put16(&mut r, configured::SET_UP, u16::from(a.is_configured()));
         Ok(r)
     }
 

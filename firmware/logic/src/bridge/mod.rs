@@ -157,6 +157,10 @@ struct TickTiming {
     last_us: u32,
     max_us: u32,
     overruns: u32,
+    /// Ticks timed since the counters were cleared.
+    ticks: u32,
+    /// The period the last tick was timed against, µs.
+    period_us: u32,
 }
 
 /// How the firmware runs.
@@ -832,6 +836,8 @@ impl<B: ChainBus> Bridge<B> {
     pub fn tick_timing(&mut self, duration_us: u32, period_us: u32) {
         self.timing.last_us = duration_us;
         self.timing.max_us = self.timing.max_us.max(duration_us);
+        self.timing.ticks = self.timing.ticks.wrapping_add(1);
+        self.timing.period_us = period_us;
         if duration_us > period_us {
             self.timing.overruns = self.timing.overruns.saturating_add(1);
         }
@@ -868,7 +874,10 @@ impl<B: ChainBus> Bridge<B> {
         for w in self.watch.iter_mut() {
             w.trips = 0;
         }
-        self.timing = TickTiming::default();
+        self.timing = TickTiming {
+            period_us: self.timing.period_us,
+            ..TickTiming::default()
+        };
     }
 
     /// The chain has failed for [`CHAIN_DEAD_TICKS`] ticks in a row: the
@@ -876,6 +885,20 @@ impl<B: ChainBus> Bridge<B> {
     /// hold the chips in reset (STBY low), which switches their bridges off.
     pub fn chain_dead(&self) -> bool {
         self.failed_ticks >= CHAIN_DEAD_TICKS
+    }
+
+    /// The chain's state for the diagnostics (0x034A): 0 working, 1 the
+    /// last batch failed, 2 dead, 3 not detected at boot.
+    pub fn chain_state(&self) -> u16 {
+        if self.axes() == 0 {
+            3
+        } else if self.chain_dead() {
+            2
+        } else if self.failed_ticks > 0 {
+            1
+        } else {
+            0
+        }
     }
 
     /// Execute a request on axis `k` (any bus). A refusal is counted and

@@ -13,12 +13,16 @@ use crate::powerstep::chain::ChainBus;
 use crate::transport::modbus::{ModbusTarget, ID_MAX};
 
 impl<B: ChainBus> ModbusTarget for Bridge<B> {
+    /// Axis k answers `base + k`; with no chip detected the base id still
+    /// answers as axis 0 (the bridge-scope extension blocks read there,
+    /// everything of an axis is an exception), so a box whose chain was
+    /// not found can be asked why.
     fn axis_for_id(&self, id: u8) -> Option<usize> {
-        if (1..=ID_MAX).contains(&id) {
-            self.axis_at(id)
-        } else {
-            None
+        if !(1..=ID_MAX).contains(&id) {
+            return None;
         }
+        self.axis_at(id)
+            .or_else(|| (self.axes() == 0 && id == self.base_address()).then_some(0))
     }
 
     fn axes(&self) -> usize {

@@ -121,7 +121,15 @@ impl<B: ChainBus> Bridge<B> {
     /// none, or not yet).
     fn respond(&mut self, req: UsbRequest, axis: u8, now_ms: u64) -> Option<InReport> {
         let k = usize::from(axis);
-        let exists = k < self.axes();
+        // With no chip detected, axis 0 still takes extension requests (the
+        // bridge-scope blocks answer; an axis's are refused by `ext_read`).
+        let exists = k < self.axes()
+            || (k == 0
+                && self.axes() == 0
+                && matches!(
+                    req,
+                    UsbRequest::ExtRead { .. } | UsbRequest::ExtWrite { .. }
+                ));
         Some(match req {
             UsbRequest::SystemReset => {
                 let target = match self.run_mode {

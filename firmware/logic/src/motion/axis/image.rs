@@ -68,6 +68,11 @@ impl ChipImage {
         self.dirty == 0
     }
 
+    /// Configured registers not yet written (since the last reset or change).
+    pub fn pending(&self) -> u32 {
+        (self.dirty & self.owned).count_ones()
+    }
+
     /// The next register to write: STEP_MODE, then CONFIG, then by address,
     /// among those `allowed` accepts.
     pub(super) fn next(&self, allowed: impl Fn(Register) -> bool) -> Option<(Register, u32)> {

@@ -424,6 +424,20 @@ impl Axis {
     pub fn is_configured(&self) -> bool {
         !matches!(self.state, AxisState::Setup(_))
     }
+    /// What the bridge configures in `reg` on this axis's chip: the chip
+    /// image's value, or for MAX_SPEED, ACC and DEC the value last written
+    /// (None before the set-up wrote it, and for every register the bridge
+    /// does not configure: ABS_POS, EL_POS, MARK, SPEED, ADC_OUT, STATUS).
+    pub fn programmed(&self, reg: Register) -> Option<u32> {
+        let written = match reg {
+            Register::MaxSpeed => self.limits.max_speed,
+            Register::Acc => self.limits.acc,
+            Register::Dec => self.limits.dec,
+            _ => return self.image.get(reg),
+        };
+        (!matches!(self.state, AxisState::Setup(_)) || written != 0).then_some(written)
+    }
+
     /// The registers the bridge configures on the chip and their values.
     pub fn chip_image(&self) -> &ChipImage {
         &self.image
