@@ -1,6 +1,6 @@
 //! Last-resort paths that switch the powerSTEP01 bridges off: the panic
 //! handler (here, on both platforms) and the HardFault handler (the
-//! platform's: `platform/board.rs`, `platform/qemu.rs`).
+//! platform's: `platform/stm32f405.rs`, `platform/qemu.rs`).
 //!
 //! Both drive the chain's STBY/RESET low ([`chips_off`]), which holds every
 //! chip in reset with its power bridges off, before anything else, so a
@@ -15,7 +15,7 @@
 //!   `udf`, as panic-probe does. The resulting HardFault is what probe-rs
 //!   reports on the board; under QEMU the platform's HardFault handler
 //!   ends QEMU with exit status 1.
-//! * **HardFault** on the board (`platform/board.rs`): STBY low, then spin. The
+//! * **HardFault** on the board (`platform/stm32f405.rs`): STBY low, then spin. The
 //!   independent watchdog (started in `init`, fed by the control tick) resets
 //!   the MCU within its window (≤ 47.1 ms; seconds only in `init` or during a
 //!   settings save); until then, and through the reset (the pin floats from
@@ -35,7 +35,7 @@ use core::sync::atomic::{AtomicBool, Ordering};
 use stm32f4xx_hal::gpio::Pin;
 use stm32f4xx_hal::pac::GPIOC;
 
-use crate::board::ChainStby;
+use crate::pins::ChainStby;
 
 /// Port letter and pin number of a HAL pin type, at compile time.
 trait PortPin {
@@ -52,14 +52,14 @@ impl<const P: char, const N: u8, MODE> PortPin for Pin<P, N, MODE> {
 const STBY_PIN: u8 = <ChainStby as PortPin>::PIN;
 const _: () = assert!(
     <ChainStby as PortPin>::PORT == 'C',
-    "chips_off writes GPIOC: follow board::ChainStby's port"
+    "chips_off writes GPIOC: follow pins::ChainStby's port"
 );
 
 /// Drive the chain's STBY/RESET low (every chip into reset, bridges off)
 /// with one write to GPIOC's BSRR, whatever state the rest of the firmware
 /// is in.
 ///
-/// Before `board::configure` the pin is still an input (or GPIOC's clock is
+/// Before `pins::configure` the pin is still an input (or GPIOC's clock is
 /// off and the write is lost): then the chips have not been released from
 /// reset yet, and the board's pull-down holds STBY low.
 pub fn chips_off() {

@@ -5,7 +5,7 @@
 //! * [`platform`]: the one seam between the board and QEMU — the same names
 //!   (clocks, chain driver, settings flash, analog, I2C, control timer,
 //!   watchdog, reset cause, fault handler, log transport) from
-//!   `platform/board.rs` or `platform/qemu.rs`;
+//!   `platform/stm32f405.rs` or `platform/qemu.rs`;
 //! * [`drivers`]: one module per peripheral driver (chain SPI, I2C slave,
 //!   RS-485, flash, analog, SysTick clock, I/O-extension SPI);
 //! * [`failsafe`]: the panic handler and the STBY switch-off it shares with
@@ -21,9 +21,9 @@
 #![no_std]
 #![deny(unsafe_code)]
 
-pub mod board;
 pub mod drivers;
 pub mod failsafe;
+pub mod pins;
 pub mod platform;
 
 /// The firmware's build id (diagnostics register 0x0344–45, boot log): the

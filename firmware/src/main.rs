@@ -1,6 +1,6 @@
 //! stepbridge: the RTIC 2 application, written once for the board and QEMU.
 //!
-//! Thin glue: pins come from `firmware::board`, peripherals from
+//! Thin glue: pins come from `firmware::pins`, peripherals from
 //! `firmware::platform` (the board's, or QEMU's stand-ins under the same
 //! names), every decision from the logic crate (`bridge_logic`).
 //!
@@ -118,7 +118,6 @@ mod app {
     use bridge_logic::transport::modbus::{RtuServer, Timing};
     use bridge_logic::transport::usb::REPORT_LEN;
     use defmt::{debug, error, info, warn};
-    use firmware::board;
     use firmware::drivers::chain_spi::ChainBuffers;
     use firmware::drivers::chain_spi::ChainSpiError;
     use firmware::drivers::clock::{self, Mono};
@@ -127,6 +126,7 @@ mod app {
     use firmware::drivers::mcu;
     use firmware::drivers::rs485::{Rs485, Rx};
     use firmware::drivers::usb::Link;
+    use firmware::pins;
     use firmware::platform::{
         self, Analog, ChainLink, I2cSlaveDriver, IoExtDriver, SettingsFlash, Stopwatch, TickTimer,
         Usb, Watchdog,
@@ -190,10 +190,10 @@ mod app {
         /// not fit it).
         rate: Rate,
         /// Status LED (pattern decided by the bridge).
-        led: board::StatusLed,
+        led: pins::StatusLed,
         /// Chain STBY/RESET, released (high) by `init`: driven low and given
         /// up (`None`) once the bridge declares the chain dead.
-        stby: Option<board::ChainStby>,
+        stby: Option<pins::ChainStby>,
         /// ADC1: motor supply, die temperature, VREFINT.
         analog: Analog,
         /// Settings store: flash sectors 10 and 11 (a host file under QEMU).
@@ -224,151 +224,65 @@ mod app {
     fn init(cx: init::Context) -> (Shared, Local) {
         let dp = cx.device;
         let mut core = cx.core;
-        // Before anything else: what the last run restarted into. ST's ROM
-        // bootloader wants the MCU as a reset leaves it (clocks, IWDG).
-        let handoff = mcu::take_handoff();
-        if handoff == Some(ResetTarget::RomDfu) {
-            platform::rom_bootloader(&dp.RCC, &dp.SYSCFG);
-        }
-        let reset_cause = ResetCause::from_rcc_csr(platform::take_reset_flags(&dp.RCC));
-        let mut rcc = platform::freeze_clocks(dp.RCC);
-        let sysclk = rcc.clocks.sysclk().raw();
-        info!(
-            "stepbridge on {=str}: build {=u32:08x}, SYSCLK {=u32} Hz, reset cause {}, handoff {}",
-            platform::NAME,
-            firmware::BUILD_ID,
-            sysclk,
-            reset_cause,
-            handoff
-        );
-        // `start` asserts a whole number of cycles per tick: 168 MHz is.
-        let systick_hz = platform::systick_hz(&rcc);
-        Mono::start(core.SYST, systick_hz - systick_hz % clock::MONO_HZ);
-        platform::enable_stopwatch(&mut core.DCB, &mut core.DWT);
-
+        let (mut rcc, boot) =
+            start_clocks(dp.RCC, &dp.SYSCFG, core.SYST, &mut core.DCB, &mut core.DWT);
         // From here on a stalled control tick resets the MCU: in the long
         // window until the end of init (chain detection and set-up, the
         // settings load, the USB start), then in the bridge's.
         let mut watchdog = Watchdog::start(dp.IWDG, &dp.DBGMCU);
-
-        let pins = board::configure(
+        let pins = pins::configure(
             dp.GPIOA.split(&mut rcc),
             dp.GPIOB.split(&mut rcc),
             dp.GPIOC.split(&mut rcc),
         );
+        let chain_pins = (pins.chain_sck, pins.chain_miso, pins.chain_mosi);
         let bus = platform::chain_driver(
             dp.SPI1,
-            (pins.chain_sck, pins.chain_miso, pins.chain_mosi),
+            chain_pins,
             pins.chain_cs,
             dp.TIM7,
             cx.local.chain_buffers,
             &mut rcc,
         );
-
-        // Reset pulse: STBY/RESET is already low (board::configure).
         let mut stby = pins.chain_stby;
-        delay_ms(RESET_PULSE_MS, sysclk);
-        stby.set_high();
-        delay_ms(WAKE_UP_MS, sysclk);
+        release_chain(&mut stby, boot.sysclk);
 
         let mut store = Store::new(platform::settings_flash(dp.FLASH));
-        let (settings, source) = load_settings(&mut store);
-        // A chain whose batch and computation do not fit the build's tick
-        // runs at a slower one (a skipped tick would run the motors slow).
-        let (mut bridge, rate) = Bridge::new_fitted_with(
-            bus,
-            Board::REFERENCE,
-            settings,
-            source,
-            TICK_HZ,
-            platform::tick_need_ns,
-        );
-        match bridge.chain_error() {
-            None => info!("chain: {=usize} powerSTEP01", bridge.axes()),
-            Some(e) => error!("chain: detection failed ({}), running with 0 axes", e),
-        }
-        if rate.derated {
-            warn!(
-                "control tick: {=u32} Hz instead of {=u32} Hz: {=usize} chips need {=u64} us per tick",
-                rate.hz,
-                TICK_HZ,
-                bridge.axes(),
-                platform::tick_need_ns(bridge.axes()) / 1000
-            );
-        }
-        bridge.set_reset_cause(reset_cause);
-        bridge.set_build_id(firmware::BUILD_ID);
         let uid = platform::unique_id();
-        bridge.set_unique_id(uid);
-        if handoff == Some(ResetTarget::BootMode) {
-            bridge.enter_boot_mode();
-            warn!("boot mode (USB 0x02): every axis asleep, USB answers; 0x02 restarts the application");
-        }
+        let (mut bridge, rate) = start_bridge(bus, &mut store, &boot, uid);
         // Connects at once; the host's traffic waits for the end of `init`.
-        let usb = platform::start_usb(
-            (dp.OTG_FS_GLOBAL, dp.OTG_FS_DEVICE, dp.OTG_FS_PWRCLK),
-            (pins.usb_dm, pins.usb_dp),
-            &rcc,
-            uid,
-        );
-
-        let (primary, secondary) = bridge.i2c_addresses();
-        let i2c = I2cSlaveDriver::new(
+        let otg = (dp.OTG_FS_GLOBAL, dp.OTG_FS_DEVICE, dp.OTG_FS_PWRCLK);
+        let usb = platform::start_usb(otg, (pins.usb_dm, pins.usb_dp), &rcc, uid);
+        let i2c = start_i2c(
             dp.I2C1,
             (pins.host_i2c_scl, pins.host_i2c_sda),
-            primary,
-            secondary,
+            &bridge,
             &mut rcc,
         );
-
-        let serial = bridge.serial();
-        let timing = Timing::for_serial(serial);
-        let rs485 = Rs485::new(
-            dp.USART2,
-            (pins.modbus_tx, pins.modbus_rx),
-            pins.modbus_de,
-            serial,
-            &mut rcc,
-        );
-        log_modbus(&rs485, &bridge, timing);
-
+        let modbus_pins = (pins.modbus_tx, pins.modbus_rx, pins.modbus_de);
+        let (rs485, timing) = start_modbus(dp.USART2, modbus_pins, &bridge, &mut rcc);
+        let ioext_pins = (pins.ioext_sck, pins.ioext_miso, pins.ioext_mosi);
         let ioext = platform::ioext_driver(
             dp.SPI2,
             dp.TIM1,
             dp.DMA1,
             dp.DMA2,
-            (pins.ioext_sck, pins.ioext_miso, pins.ioext_mosi),
+            ioext_pins,
             pins.ioext_cs,
             cx.local.io_buffers,
             &mut rcc,
         );
-
         let mut analog = Analog::new(dp.ADC1, pins.supply_sense, &mut rcc);
         bridge.on_analog(analog.sample());
-
-        let mut tick = TickTimer::new(dp.TIM2, &mut rcc);
-        if let Err(e) = tick.start(rate.hz) {
-            error!("control timer: start failed ({}), no control loop", e);
-        }
-        if modbus_server::spawn().is_err() {
-            error!("modbus: server task spawn failed");
-        }
-        if ioext_run::spawn().is_err() {
-            error!("ioext: task spawn failed");
-        }
+        let tick = start_tasks(dp.TIM2, rate, &mut rcc);
 
         let (bytes_in, bytes_seen) = rtic_sync::make_signal!(());
         let (io_actions, io_next) = rtic_sync::make_channel!(Action, IO_ACTIONS);
         let (io_ended_spi, io_ended) = rtic_sync::make_channel!((), 2);
         let io_ended_bit = io_ended_spi.clone();
-
         // Last: the bridge's window (short), with the first control tick at
         // most one period away.
-        let window = bridge.watchdog_window();
-        match watchdog.feed_in(window) {
-            Ok(()) => info!("watchdog: {} window", window),
-            Err(e) => error!("watchdog: {} window not in effect ({})", window, e),
-        }
+        arm_watchdog(&mut watchdog, &bridge);
         (
             Shared {
                 bridge,
@@ -398,6 +312,157 @@ mod app {
                 io_ended_bit,
             },
         )
+    }
+
+    /// What the last run left behind, read before anything else.
+    struct Boot {
+        /// The restart target the last run asked for (`.uninit` word).
+        handoff: Option<ResetTarget>,
+        /// RCC_CSR's reset flags, decoded (and cleared).
+        reset_cause: ResetCause,
+        sysclk: u32,
+    }
+
+    /// Start-up step 1: the handoff word first (ST's ROM bootloader wants
+    /// the MCU as a reset leaves it: clocks, IWDG), the reset cause, then
+    /// the clock tree, the monotonic and the cycle counter.
+    fn start_clocks(
+        rcc: stm32f4xx_hal::pac::RCC,
+        syscfg: &stm32f4xx_hal::pac::SYSCFG,
+        syst: cortex_m::peripheral::SYST,
+        dcb: &mut cortex_m::peripheral::DCB,
+        dwt: &mut cortex_m::peripheral::DWT,
+    ) -> (stm32f4xx_hal::rcc::Rcc, Boot) {
+        let handoff = mcu::take_handoff();
+        if handoff == Some(ResetTarget::RomDfu) {
+            platform::rom_bootloader(&rcc, syscfg);
+        }
+        let reset_cause = ResetCause::from_rcc_csr(platform::take_reset_flags(&rcc));
+        let rcc = platform::freeze_clocks(rcc);
+        let sysclk = rcc.clocks.sysclk().raw();
+        info!(
+            "stepbridge on {=str}: build {=u32:08x}, SYSCLK {=u32} Hz, reset cause {}, handoff {}",
+            platform::NAME,
+            firmware::BUILD_ID,
+            sysclk,
+            reset_cause,
+            handoff
+        );
+        // `start` asserts a whole number of cycles per tick: 168 MHz is.
+        let systick_hz = platform::systick_hz(&rcc);
+        Mono::start(syst, systick_hz - systick_hz % clock::MONO_HZ);
+        platform::enable_stopwatch(dcb, dwt);
+        let boot = Boot {
+            handoff,
+            reset_cause,
+            sysclk,
+        };
+        (rcc, boot)
+    }
+
+    /// Start-up step 2: the chips' reset pulse (STBY/RESET is already low,
+    /// `pins::configure`), then their wake-up time before the first byte.
+    fn release_chain(stby: &mut pins::ChainStby, sysclk: u32) {
+        delay_ms(RESET_PULSE_MS, sysclk);
+        stby.set_high();
+        delay_ms(WAKE_UP_MS, sysclk);
+    }
+
+    /// Start-up step 3: the settings, chain detection and set-up, the tick
+    /// rate, and what the bridge reports about this start.
+    fn start_bridge(
+        bus: ChainLink,
+        store: &mut Store<SettingsFlash>,
+        boot: &Boot,
+        uid: [u32; 3],
+    ) -> (Bridge<ChainLink>, Rate) {
+        let (settings, source) = load_settings(store);
+        // A chain whose batch and computation do not fit the build's tick
+        // runs at a slower one (a skipped tick would run the motors slow).
+        let (mut bridge, rate) = Bridge::new_fitted_with(
+            bus,
+            Board::REFERENCE,
+            settings,
+            source,
+            TICK_HZ,
+            platform::tick_need_ns,
+        );
+        match bridge.chain_error() {
+            None => info!("chain: {=usize} powerSTEP01", bridge.axes()),
+            Some(e) => error!("chain: detection failed ({}), running with 0 axes", e),
+        }
+        if rate.derated {
+            warn!(
+                "control tick: {=u32} Hz instead of {=u32} Hz: {=usize} chips need {=u64} us per tick",
+                rate.hz,
+                TICK_HZ,
+                bridge.axes(),
+                platform::tick_need_ns(bridge.axes()) / 1000
+            );
+        }
+        bridge.set_reset_cause(boot.reset_cause);
+        bridge.set_build_id(firmware::BUILD_ID);
+        bridge.set_unique_id(uid);
+        if boot.handoff == Some(ResetTarget::BootMode) {
+            bridge.enter_boot_mode();
+            warn!("boot mode (USB 0x02): every axis asleep, USB answers; 0x02 restarts the application");
+        }
+        (bridge, rate)
+    }
+
+    /// Start-up step 4a: the PoStep60 I2C slave at the bridge's addresses.
+    fn start_i2c(
+        i2c1: pins::HostI2c,
+        lines: (pins::HostI2cScl, pins::HostI2cSda),
+        bridge: &Bridge<ChainLink>,
+        rcc: &mut stm32f4xx_hal::rcc::Rcc,
+    ) -> I2cSlaveDriver {
+        let (primary, secondary) = bridge.i2c_addresses();
+        I2cSlaveDriver::new(i2c1, lines, primary, secondary, rcc)
+    }
+
+    /// Start-up step 4b: the RS-485 line at the settings' serial format,
+    /// and the Modbus timing that goes with it.
+    fn start_modbus(
+        usart: pins::ModbusUsart,
+        (tx, rx, de): (pins::ModbusTx, pins::ModbusRx, pins::ModbusDe),
+        bridge: &Bridge<ChainLink>,
+        rcc: &mut stm32f4xx_hal::rcc::Rcc,
+    ) -> (Rs485, Timing) {
+        let serial = bridge.serial();
+        let timing = Timing::for_serial(serial);
+        let rs485 = Rs485::new(usart, (tx, rx), de, serial, rcc);
+        log_modbus(&rs485, bridge, timing);
+        (rs485, timing)
+    }
+
+    /// Start-up step 5: the control timer at the fitted rate and the two
+    /// async tasks.
+    fn start_tasks(
+        tim: pins::ControlTimer,
+        rate: Rate,
+        rcc: &mut stm32f4xx_hal::rcc::Rcc,
+    ) -> TickTimer {
+        let mut tick = TickTimer::new(tim, rcc);
+        if let Err(e) = tick.start(rate.hz) {
+            error!("control timer: start failed ({}), no control loop", e);
+        }
+        if modbus_server::spawn().is_err() {
+            error!("modbus: server task spawn failed");
+        }
+        if ioext_run::spawn().is_err() {
+            error!("ioext: task spawn failed");
+        }
+        tick
+    }
+
+    /// Start-up's last step: the watchdog in the bridge's window.
+    fn arm_watchdog(watchdog: &mut Watchdog, bridge: &Bridge<ChainLink>) {
+        let window = bridge.watchdog_window();
+        match watchdog.feed_in(window) {
+            Ok(()) => info!("watchdog: {} window", window),
+            Err(e) => error!("watchdog: {} window not in effect ({})", window, e),
+        }
     }
 
     /// The settings to boot with: the store's, or factory settings (and why).

@@ -59,7 +59,7 @@ mod support {
     /// Stamp when the last window's DMA handler returned.
     pub static ENDED_AT: AtomicU32 = AtomicU32::new(0);
 
-    /// CS is PA4 (`board::ChainCs`).
+    /// CS is PA4 (`pins::ChainCs`).
     const CS: u32 = 1 << 4;
 
     #[allow(unsafe_code)]

@@ -14,7 +14,7 @@ mod common;
 mod support {
     use stm32f4xx_hal::pac;
 
-    /// STBY is PC4 (`board::ChainStby`).
+    /// STBY is PC4 (`pins::ChainStby`).
     pub const STBY: u32 = 1 << 4;
 
     /// (ODR, MODER, IDR) of GPIOA, GPIOB, GPIOC.

@@ -28,7 +28,7 @@ mod support {
         pub sysclk_hz: u32,
     }
 
-    /// CS is PB11 (`board::IoExtCs`).
+    /// CS is PB11 (`pins::IoExtCs`).
     const CS: u32 = 1 << 11;
 
     fn gpiob() -> &'static pac::gpiob::RegisterBlock {

@@ -14,9 +14,9 @@ mod common;
 #[cfg(target_os = "none")]
 mod support {
     use bridge_logic::postep60::settings::{Parity, Serial};
-    use firmware::board;
     use firmware::drivers::clock;
     use firmware::drivers::rs485::Rs485;
+    use firmware::pins;
     use stm32f4xx_hal::gpio::GpioExt;
     use stm32f4xx_hal::pac;
 
@@ -54,7 +54,7 @@ mod support {
         // which only this test's pins depend on.
         let (usart, gpioa) = unsafe { (pac::USART2::steal(), pac::GPIOA::steal()) };
         let gpioa = gpioa.split(&mut t.rcc);
-        let (tx, rx, de) = board::modbus_pins(gpioa.pa2, gpioa.pa3, gpioa.pa1);
+        let (tx, rx, de) = pins::modbus_pins(gpioa.pa2, gpioa.pa3, gpioa.pa1);
         Rs485::new(usart, (tx, rx), de, serial, &mut t.rcc)
     }
 

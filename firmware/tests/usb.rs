@@ -22,8 +22,8 @@ mod support {
 
     pub struct State {
         pub rcc: Rcc,
-        pub otg: Option<firmware::board::UsbOtg>,
-        pub pins: Option<(firmware::board::UsbDm, firmware::board::UsbDp)>,
+        pub otg: Option<firmware::pins::UsbOtg>,
+        pub pins: Option<(firmware::pins::UsbDm, firmware::pins::UsbDp)>,
         pub usb: Option<Usb>,
         pub sysclk_hz: u32,
     }

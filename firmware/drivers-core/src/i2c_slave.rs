@@ -91,7 +91,7 @@
 //!   changes its address after the reply), or by the Modbus server task at
 //!   any time. A change takes effect at the next address phase; a
 //!   transaction already addressed goes on to its end.
-//! * The pins come configured from `firmware::board::host_i2c_pins`.
+//! * The pins come configured from `firmware::pins::host_i2c_pins`.
 
 use bridge_logic::transport::i2c::{I2cSlave, I2cTarget, Which};
 

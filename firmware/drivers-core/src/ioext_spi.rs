@@ -72,7 +72,7 @@
 //!
 //! # Pins
 //!
-//! `board::configure` leaves SCK and MOSI as floating inputs and MISO as an
+//! `pins::configure` leaves SCK and MOSI as floating inputs and MISO as an
 //! input with a pull-up; CS is high (and needs an external pull-up). The
 //! first transfer takes them: SCK AF5 (SPI2_SCK) or AF1 (TIM1_CH1N) with an
 //! internal pull towards CPOL, MOSI AF5 or a GPIO output, MISO AF5 (the bit
@@ -226,7 +226,7 @@ pub trait IoExtHw: Regs<IoReg> {
     fn address(&self, target: Target) -> u32;
 }
 
-/// The port's GPIOB pins (`board.rs`): SCK, MISO and MOSI must be 8..=15
+/// The port's GPIOB pins (`pins.rs`): SCK, MISO and MOSI must be 8..=15
 /// (AFRH), CS any.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Pins {
@@ -427,7 +427,7 @@ pub struct IoExtPort<H> {
 }
 
 impl<H: IoExtHw> IoExtPort<H> {
-    /// The port on `hw`, with CS high as `board::configure` left it;
+    /// The port on `hw`, with CS high as `pins::configure` left it;
     /// nothing is driven until the first transfer. The caller has clocked
     /// and reset SPI2 and TIM1 and clocked DMA1 and DMA2.
     pub fn new(hw: H, sysclk_hz: u32) -> IoExtPort<H> {

@@ -49,7 +49,7 @@
 //! * `on_interrupt` runs from the USART2 interrupt; `send` is called with that
 //!   interrupt masked (an RTIC lock of this resource).
 //! * RE̅ of the transceiver is tied to DE (so we do not hear ourselves), and
-//!   the RX pin has a pull-up (board.rs) for while RO is high-Z.
+//!   the RX pin has a pull-up (pins.rs) for while RO is high-Z.
 //! * QEMU 7.2's USART model sends each written byte at once, shows TXE and
 //!   TC always set and raises its interrupt for RXNE only (TXE/TC interrupts
 //!   are not modelled). The "load while TXE is set, then check TC" steps

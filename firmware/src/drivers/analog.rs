@@ -27,7 +27,7 @@ use stm32f4xx_hal::adc::config::{AdcConfig, Clock, Resolution, SampleTime};
 use stm32f4xx_hal::adc::{Adc, Temperature, Vref};
 use stm32f4xx_hal::rcc::Rcc;
 
-use crate::board::{SenseAdc, SupplySense};
+use crate::pins::{SenseAdc, SupplySense};
 
 /// Sample time of every channel (see the module docs).
 const SAMPLE_TIME: SampleTime = SampleTime::Cycles_480;

@@ -27,11 +27,11 @@ use drivers_core::Regs;
 use stm32f4xx_hal::pac::{self, Interrupt};
 use stm32f4xx_hal::rcc::{Enable, Rcc, Reset};
 
-use crate::board::{
+use crate::drivers::dma;
+use crate::pins::{
     ChainCs, ChainGapTimer, ChainMiso, ChainMosi, ChainSck, ChainSpi as ChainSpiPeriph,
     CHAIN_CS_PIN,
 };
-use crate::drivers::dma;
 
 pub use drivers_core::chain_spi::{
     ChainBuffers, ChainDmaStats, ChainSpiError, CS_DESELECT_NS, CS_SETUP_NS, DMEIF0, DMEIF3, FEIF0,
@@ -220,7 +220,7 @@ impl ChainMemory for ChainRegs {
     }
 }
 
-/// Take SPI1, TIM7 and the chain's pins as `board::configure` left them (CS
+/// Take SPI1, TIM7 and the chain's pins as `pins::configure` left them (CS
 /// high) and return their one driver. Clocks and resets SPI1 and TIM7,
 /// clocks DMA2 (never reset: the I/O extension uses it too).
 pub fn chain_spi(
@@ -241,7 +241,7 @@ pub fn chain_spi(
         sysclk_hz: rcc.clocks.sysclk().raw(),
         timclk_hz: rcc.clocks.timclk1().raw(),
     };
-    // The pins keep the modes `board::configure` gave them; from here on
+    // The pins keep the modes `pins::configure` gave them; from here on
     // SPI1, TIM7 and CS are driven through their registers (module docs).
     let _ = (spi, pins, cs_pin, tim);
     core_spi::ChainSpi::new(ChainRegs { bufs }, clocks)

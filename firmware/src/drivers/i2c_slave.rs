@@ -17,7 +17,7 @@ use drivers_core::Regs;
 use rtic::Mutex;
 use stm32f4xx_hal::rcc::{Enable, Rcc, Reset};
 
-use crate::board::{HostI2c, HostI2cScl, HostI2cSda};
+use crate::pins::{HostI2c, HostI2cScl, HostI2cSda};
 
 /// I2C1's registers and its two pins, as the driver's [`I2cPort`].
 pub struct I2c1Port {

@@ -26,18 +26,18 @@ use drivers_core::Regs;
 use stm32f4xx_hal::pac;
 use stm32f4xx_hal::rcc::{Enable, Rcc, Reset};
 
-use crate::board::{
+use crate::drivers::dma;
+use crate::pins::{
     IoExtCs, IoExtMiso, IoExtMosi, IoExtSck, IoExtSpi, IoExtSpiDma, IoExtTimer, IoExtTimerDma,
     IOEXT_CS_PIN, IOEXT_MISO_PIN, IOEXT_MOSI_PIN, IOEXT_SCK_PIN,
 };
-use crate::drivers::dma;
 
 pub use drivers_core::ioext_spi::{IoExtBuffers, IoExtError, Started};
 
 /// The extension's port: the driver on this chip's registers.
 pub type IoExtPort = core_io::IoExtPort<IoExtRegs>;
 
-/// The port's pins on GPIOB (`board.rs`).
+/// The port's pins on GPIOB (`pins.rs`).
 pub const PINS: Pins = Pins {
     cs: IOEXT_CS_PIN,
     sck: IOEXT_SCK_PIN,
@@ -280,7 +280,7 @@ impl IoExtHw for IoExtRegs {
 }
 
 /// Take SPI2, TIM1, DMA1, DMA2 and the extension's pins as
-/// `board::configure` left them (CS high) and return the port; nothing is
+/// `pins::configure` left them (CS high) and return the port; nothing is
 /// driven until the first transfer. Clocks and resets SPI2 and TIM1,
 /// clocks DMA1 and DMA2 (DMA2 is never reset: the chain uses it too).
 #[allow(clippy::too_many_arguments)]

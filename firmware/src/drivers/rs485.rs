@@ -4,7 +4,7 @@
 //! USART model, `host_tests::rm0090::usart`). This module enables and
 //! resets USART2 through the RCC, maps the driver's register ids to
 //! `pac::USART2`'s registers and drives PA1. The pins come configured from
-//! `crate::board` (TX/RX in AF7, DE low).
+//! `crate::pins` (TX/RX in AF7, DE low).
 
 // The only unsafe block is the PAC's raw register writer (`W::bits`).
 #![allow(unsafe_code)]
@@ -14,7 +14,7 @@ use drivers_core::rs485::{Rs485Port, UsartReg};
 use drivers_core::Regs;
 use stm32f4xx_hal::rcc::{Enable, Rcc, Reset};
 
-use crate::board::{ModbusDe, ModbusRx, ModbusTx, ModbusUsart};
+use crate::pins::{ModbusDe, ModbusRx, ModbusTx, ModbusUsart};
 
 pub use drivers_core::rs485::{Rx, RxErrors};
 

@@ -1,10 +1,10 @@
 //! The one seam between the board and QEMU 7.2's `netduinoplus2` (an
 //! STM32F405 without most of its peripherals).
 //!
-//! `board.rs` (the default) and `qemu.rs` (feature `qemu`) offer the same
+//! `stm32f405.rs` (the default) and `qemu.rs` (feature `qemu`) offer the same
 //! names; this module picks one, and nothing outside `platform/` asks which.
 //! The RTIC app, the Modbus line (`drivers::rs485`), the SysTick monotonic
-//! (`drivers::clock`), the pins (`crate::board`) and the panic handler are
+//! (`drivers::clock`), the pins (`crate::pins`) and the panic handler are
 //! the same code on both.
 //!
 //! | name | board | QEMU | why QEMU differs |
@@ -33,7 +33,7 @@
 //! both.
 
 #[cfg_attr(feature = "qemu", path = "qemu.rs")]
-#[cfg_attr(not(feature = "qemu"), path = "board.rs")]
+#[cfg_attr(not(feature = "qemu"), path = "stm32f405.rs")]
 mod selected;
 
 pub use selected::*;

@@ -83,14 +83,14 @@ use stepbridge_sim::{ConsoleLine, Fault, HomeCam, Lines, ShiftChain, SimChain};
 use stm32f4xx_hal::pac;
 use stm32f4xx_hal::rcc::{Config, Enable, Rcc, RccExt, Reset};
 
-use crate::board::{
+use crate::drivers::chain_spi::{ChainBuffers, ChainCell, ChainSpiError};
+use crate::drivers::ioext_spi::{IoExtBuffers, IoExtError, Started};
+use crate::drivers::usb::Link;
+use crate::pins::{
     self, ChainCs, ChainGapTimer, ChainMiso, ChainMosi, ChainSck, ChainSpi, HostI2c, HostI2cScl,
     HostI2cSda, IoExtCs, IoExtMiso, IoExtMosi, IoExtSck, IoExtSpi, IoExtSpiDma, IoExtTimer,
     IoExtTimerDma, SenseAdc, SupplySense,
 };
-use crate::drivers::chain_spi::{ChainBuffers, ChainCell, ChainSpiError};
-use crate::drivers::ioext_spi::{IoExtBuffers, IoExtError, Started};
-use crate::drivers::usb::Link;
 use bridge_logic::transport::usb::REPORT_LEN;
 use usb_device::device::UsbDeviceState;
 
@@ -155,7 +155,7 @@ pub enum TimerError {
 /// board, and on the board's phase: every deadline is a whole number of
 /// periods after the start on QEMU's virtual clock.
 pub struct TickTimer {
-    tim: board::ControlTimer,
+    tim: pins::ControlTimer,
     /// The period, ns of QEMU's virtual clock (TIM2's CNT at 1 GHz).
     period: u32,
     /// CNT at the next deadline.
@@ -170,9 +170,9 @@ pub struct TickTimer {
 const TICK_MIN_GAP_NS: u32 = 20_000;
 
 impl TickTimer {
-    pub fn new(tim: board::ControlTimer, rcc: &mut Rcc) -> TickTimer {
-        board::ControlTimer::enable(rcc);
-        board::ControlTimer::reset(rcc);
+    pub fn new(tim: pins::ControlTimer, rcc: &mut Rcc) -> TickTimer {
+        pins::ControlTimer::enable(rcc);
+        pins::ControlTimer::reset(rcc);
         TickTimer {
             tim,
             period: 0,
@@ -384,7 +384,7 @@ pub fn with_chain<R>(f: impl FnOnce(&mut ChainDriver) -> R) -> Option<R> {
 }
 
 /// The simulated chain instead of SPI1, TIM7 and DMA2 (which, and whose
-/// pins, stay as `board::configure` left them), put where the control tick
+/// pins, stay as `pins::configure` left them), put where the control tick
 /// reaches it ([`with_chain`]); returns the bridge's handle. Start the
 /// monotonic first.
 pub fn chain_driver(
@@ -437,7 +437,7 @@ pub struct IoExtDriver {
 }
 
 /// The simulated port instead of SPI2/TIM1/DMA (which, and whose pins,
-/// stay as `board::configure` left them).
+/// stay as `pins::configure` left them).
 #[allow(clippy::too_many_arguments)]
 pub fn ioext_driver(
     _spi: IoExtSpi,
@@ -785,8 +785,8 @@ impl Usb {
 
 /// Never starts USB (see [`Usb`]); says so in the boot log.
 pub fn start_usb(
-    _otg: board::UsbOtg,
-    _pins: (board::UsbDm, board::UsbDp),
+    _otg: pins::UsbOtg,
+    _pins: (pins::UsbDm, pins::UsbDp),
     _rcc: &Rcc,
     _uid: [u32; 3],
 ) -> Option<Usb> {

@@ -17,8 +17,8 @@ macro_rules! marker {
 }
 
 use bridge_logic::bridge::ResetCause;
-use firmware::board::{self, Pins};
 use firmware::drivers::clock::{self, Mono};
+use firmware::pins::{self, Pins};
 use firmware::platform;
 use stm32f4xx_hal::gpio::GpioExt;
 use stm32f4xx_hal::pac;
@@ -38,7 +38,7 @@ pub struct Target {
     pub iwdg: pac::IWDG,
     pub dbgmcu: pac::DBGMCU,
     pub tim2: pac::TIM2,
-    pub usb_otg: board::UsbOtg,
+    pub usb_otg: pins::UsbOtg,
     pub spi2: pac::SPI2,
     pub tim1: pac::TIM1,
     pub dma1: pac::DMA1,
@@ -60,7 +60,7 @@ pub fn setup() -> Target {
     cp.DWT.enable_cycle_counter();
     let systick_hz = platform::systick_hz(&rcc);
     Mono::start(cp.SYST, systick_hz - systick_hz % clock::MONO_HZ);
-    let pins = board::configure(
+    let pins = pins::configure(
         dp.GPIOA.split(&mut rcc),
         dp.GPIOB.split(&mut rcc),
         dp.GPIOC.split(&mut rcc),

@@ -69,7 +69,7 @@ const SPI_TICK: u64 = CLOCK_HZ / PCLK1_HZ;
 pub const ACCESS: u64 = 4;
 /// From a DMA request to its item moved.
 pub const DMA_LATENCY: u64 = 6;
-/// The board's pins (`board.rs`): CS PB11, SCK PB13, MISO PB14, MOSI PB15.
+/// The board's pins (`pins.rs`): CS PB11, SCK PB13, MISO PB14, MOSI PB15.
 pub const PINS: Pins = Pins {
     cs: 11,
     sck: 13,
@@ -387,7 +387,7 @@ fn field(reg: u32, pin: u8, width: u32) -> u32 {
 }
 
 impl IoModel {
-    /// Reset state as `board::configure` leaves GPIOB (CS an output, high;
+    /// Reset state as `pins::configure` leaves GPIOB (CS an output, high;
     /// SCK and MOSI floating inputs; MISO an input with a pull-up), the
     /// chips behind the pins.
     pub fn new(chips: ShiftRegs) -> IoModel {

@@ -4,7 +4,7 @@
 //!
 //! # What the driver does with a plan
 //!
-//! Pins (suggested, `board.rs` decides): SCK = PB13 (SPI2_SCK AF5 for the
+//! Pins (suggested, `pins.rs` decides): SCK = PB13 (SPI2_SCK AF5 for the
 //! SPI engine, TIM1_CH1N AF1 for the timer engine), MISO = PB14, MOSI =
 //! PB15, CS = a push-pull GPIO with an external pull-up (CS must read high
 //! while the port is not configured). For every plan:

@@ -2,8 +2,10 @@
 //!
 //! This is the one place in the firmware that names a pin or a peripheral
 //! instance. Other modules use the type aliases below, so moving a signal to
-//! another pin is a change to this file only (plus `docs/pins.md`, which
-//! mirrors [`PIN_TABLE`]).
+//! another pin is a change to this file and to the table in `docs/pins.md`:
+//! `host-tests/tests/pin_table.rs` reads both (and every pin row of the
+//! README and `docs/`) and fails on any difference — a signal's pin, its
+//! alternate function, the `*_PIN` numbers, a reserved pin in use.
 //!
 //! Active levels are those of the powerSTEP01 pins: STBY/RESET, FLAG and BUSY
 //! are active low; FLAG and BUSY are open-drain outputs of every chip, wired
@@ -147,48 +149,6 @@ pub const IOEXT_SCK_PIN: u8 = 13;
 /// GPIOB_BSRR).
 pub const IOEXT_CS_PIN: u8 = 11;
 
-// ---------------------------------------------------------------------------
-// Pins reserved for later issues: declared, not configured
-// ---------------------------------------------------------------------------
-
-/// Reserved pins, in their reset mode. Nothing configures them yet; they are
-/// named here so the assignment is fixed and [`PIN_TABLE`] is complete.
-#[allow(dead_code)] // declarations only, until the issues that use them
-pub mod reserved {
-    use stm32f4xx_hal::gpio;
-
-    /// STEP pass-through to the chips' STCK inputs.
-    pub type ChainStck = gpio::PB1;
-}
-
-/// Every assignment as (signal, pin, notes); `docs/pins.md` is the same table
-/// in markdown. One entry per line so a script can compare the two.
-#[allow(dead_code)] // documentation data; the firmware never reads it
-#[rustfmt::skip] // keep one aligned row per pin
-pub const PIN_TABLE: &[(&str, &str, &str)] = &[
-    ("CHAIN_SCK",    "PA5",  "SPI1 SCK (AF5), mode 3, to CK of every powerSTEP01"),
-    ("CHAIN_MISO",   "PA6",  "SPI1 MISO (AF5), pull-up, from SDO of the last chip"),
-    ("CHAIN_MOSI",   "PA7",  "SPI1 MOSI (AF5), to SDI of chip 0"),
-    ("CHAIN_CS",     "PA4",  "GPIO push-pull, idle high, common CS of all chips"),
-    ("CHAIN_STBY",   "PC4",  "GPIO push-pull, STBY/RESET of all chips, active low"),
-    ("CHAIN_FLAG",   "PC5",  "input, pull-up; open-drain wired-OR FLAG, active low"),
-    ("CHAIN_BUSY",   "PB0",  "input, pull-up; open-drain wired-OR BUSY, active low"),
-    ("STATUS_LED",   "PB12", "GPIO push-pull, high = on"),
-    ("HOST_I2C_SCL", "PB6",  "I2C1 SCL (AF4), open drain, PoStep60 I2C slave"),
-    ("HOST_I2C_SDA", "PB7",  "I2C1 SDA (AF4), open drain, PoStep60 I2C slave"),
-    ("SUPPLY_SENSE", "PA0",  "analog, motor supply through the board divider (÷20)"),
-    ("MODBUS_TX",    "PA2",  "USART2 TX (AF7), Modbus RTU, to DI of the RS-485 transceiver"),
-    ("MODBUS_RX",    "PA3",  "USART2 RX (AF7), pull-up, from RO of the RS-485 transceiver"),
-    ("MODBUS_DE",    "PA1",  "GPIO push-pull, RS-485 DE (and RE-), high = transmit"),
-    ("USB_DM",       "PA11", "USB OTG FS D- (AF10), PoStep60 USB HID"),
-    ("USB_DP",       "PA12", "USB OTG FS D+ (AF10), PoStep60 USB HID"),
-    ("CHAIN_STCK",   "PB1",  "reserved: GPIO, STEP pass-through to the chips' STCK"),
-    ("IOEXT_SCK",    "PB13", "I/O extension SCK: AF5 SPI2_SCK or AF1 TIM1_CH1N, idles at CPOL"),
-    ("IOEXT_MISO",   "PB14", "I/O extension MISO (AF5 SPI2_MISO; GPIOB_IDR for TIM1), pull-up"),
-    ("IOEXT_MOSI",   "PB15", "I/O extension MOSI: AF5 SPI2_MOSI or GPIO output (TIM1 + DMA2)"),
-    ("IOEXT_CS",     "PB11", "GPIO push-pull, idle high, external pull-up; '165 SH/LD via inverter"),
-];
-
 /// The configured pins of everything in use.
 pub struct Pins {
     pub chain_sck: ChainSck,
@@ -224,7 +184,8 @@ pub struct Pins {
 /// transfer); the I2C pins are
 /// released (open drain, and the I2C peripheral stays off until its driver
 /// starts it); the USB pins go to OTG FS's AF10, where the core's PHY keeps
-/// them released until USB starts. Reserved pins stay in their reset mode.
+/// them released until USB starts. Pins not named here (PB1, reserved for a
+/// STEP pass-through, among them) stay in their reset mode.
 pub fn configure(
     gpioa: gpio::gpioa::Parts,
     gpiob: gpio::gpiob::Parts,

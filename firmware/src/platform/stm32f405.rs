@@ -14,13 +14,13 @@ use stm32f4xx_hal::time::Hertz;
 use stm32f4xx_hal::timer::{CounterHz, Event, Flag, TimerExt};
 use stm32f4xx_hal::{ClearFlags, Listen};
 
-use crate::board::{
-    self, ChainCs, ChainGapTimer, ChainMiso, ChainMosi, ChainSck, ChainSpi, IoExtCs, IoExtMiso,
-    IoExtMosi, IoExtSck, IoExtSpi, IoExtSpiDma, IoExtTimer, IoExtTimerDma,
-};
 use crate::drivers::chain_spi::{self, ChainBuffers, ChainCell};
 use crate::drivers::flash::StoreFlash;
 use crate::drivers::ioext_spi::{self, IoExtBuffers, IoExtPort};
+use crate::pins::{
+    self, ChainCs, ChainGapTimer, ChainMiso, ChainMosi, ChainSck, ChainSpi, IoExtCs, IoExtMiso,
+    IoExtMosi, IoExtSck, IoExtSpi, IoExtSpiDma, IoExtTimer, IoExtTimerDma,
+};
 
 pub use crate::drivers::analog::Analog;
 pub use crate::drivers::i2c_slave::I2cSlaveDriver;
@@ -34,8 +34,8 @@ pub const NAME: &str = "board";
 /// (`freeze` asserts the 48 MHz).
 pub fn freeze_clocks(rcc: pac::RCC) -> Rcc {
     rcc.freeze(
-        Config::hse(Hertz::from_raw(board::HSE_HZ))
-            .sysclk(Hertz::from_raw(board::SYSCLK_HZ))
+        Config::hse(Hertz::from_raw(pins::HSE_HZ))
+            .sysclk(Hertz::from_raw(pins::SYSCLK_HZ))
             .require_pll48clk(),
     )
 }
@@ -102,10 +102,10 @@ pub type TimerError = stm32f4xx_hal::timer::Error;
 
 /// TIM2 as the control-loop timer: its update interrupt is the control
 /// tick (the app binds `TIM2`).
-pub struct TickTimer(CounterHz<board::ControlTimer>);
+pub struct TickTimer(CounterHz<pins::ControlTimer>);
 
 impl TickTimer {
-    pub fn new(tim: board::ControlTimer, rcc: &mut Rcc) -> TickTimer {
+    pub fn new(tim: pins::ControlTimer, rcc: &mut Rcc) -> TickTimer {
         TickTimer(tim.counter_hz(rcc))
     }
 
@@ -216,8 +216,8 @@ pub type Usb = crate::drivers::usb::UsbPort;
 /// Start USB (serial number from `uid`); None, and logged, if it was
 /// refused. Needs the PLL48CLK of [`freeze_clocks`].
 pub fn start_usb(
-    otg: board::UsbOtg,
-    pins: (board::UsbDm, board::UsbDp),
+    otg: pins::UsbOtg,
+    pins: (pins::UsbDm, pins::UsbDp),
     rcc: &Rcc,
     uid: [u32; 3],
 ) -> Option<Usb> {
@@ -275,6 +275,6 @@ impl Stopwatch {
     /// µs since [`Stopwatch::start`].
     pub fn elapsed_us(&self) -> u32 {
         cortex_m::peripheral::DWT::cycle_count().wrapping_sub(self.0)
-            / (board::SYSCLK_HZ / 1_000_000)
+            / (pins::SYSCLK_HZ / 1_000_000)
     }
 }
