@@ -84,12 +84,23 @@ pub fn image() -> PathBuf {
 }
 
 /// `cargo qemu`: set up (target, QEMU 7.x, defmt-print), build the QEMU
-/// image and boot it (`qemu-run`).
+/// image and boot it (`qemu-run`). A defmt-print that must be installed
+/// first builds while the firmware does.
 pub fn qemu(extra: &[String]) -> Result {
     setup::ensure_target()?;
     setup::qemu()?;
-    if std::env::var("QEMU_RAW").map_or(true, |v| v != "1") {
-        setup::defmt_print()?;
+    let decoder = if std::env::var("QEMU_RAW").map_or(true, |v| v != "1") {
+        Some(setup::defmt_print_begin()?)
+    } else {
+        None
+    };
+    if let Some(d @ setup::DefmtPrint::Installing { .. }) = decoder {
+        let mut b = firmware("build", &[]);
+        b.args(["--features", "qemu"]).args(extra);
+        let built = util::run(&mut b);
+        let installed = d.wait();
+        built?;
+        installed?;
     }
     let mut c = firmware("run", &[]);
     c.args(["--features", "qemu"]).args(extra);

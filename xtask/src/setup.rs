@@ -525,20 +525,69 @@ pub fn defmt_install(other_version_installed: bool) -> DefmtInstall {
     }
 }
 
+/// defmt-print found, or its installation under way.
+#[derive(Debug)]
+pub enum DefmtPrint {
+    Ready(PathBuf),
+    /// `cargo install` runs in the background (its output in `log`).
+    Installing {
+        child: std::process::Child,
+        log: PathBuf,
+        bin: PathBuf,
+    },
+}
+
+impl DefmtPrint {
+    /// Wait for the installation, if one runs: the binary.
+    pub fn wait(self) -> Result<PathBuf> {
+        let (mut child, log, bin) = match self {
+            DefmtPrint::Ready(p) => return Ok(p),
+            DefmtPrint::Installing { child, log, bin } => (child, log, bin),
+        };
+        let status = child
+            .wait()
+            .map_err(|e| format!("waiting for cargo install defmt-print: {e}"))?;
+        if !status.success() {
+            let text = std::fs::read_to_string(&log).unwrap_or_default();
+            bail!(
+                "cargo install defmt-print failed (exit status {}):\n{text}",
+                util::code(status)
+            );
+        }
+        if !defmt_print_is_1x(&bin) {
+            bail!(
+                "defmt-print was installed but {} does not run",
+                bin.display()
+            );
+        }
+        say(
+            P,
+            format!(
+                "defmt-print {DEFMT_PRINT_VERSION} installed: {}",
+                bin.display()
+            ),
+        );
+        Ok(bin)
+    }
+}
+
 /// defmt-print 1.x: on PATH, in `CARGO_HOME/bin` (not necessarily on PATH)
-/// or in `target/tools/bin`; installed with `cargo install --locked` if
-/// there is none.
-pub fn defmt_print() -> Result<PathBuf> {
+/// or in `target/tools/bin`; if there is none, `cargo install --locked`
+/// starts in the background (so the firmware can build meanwhile).
+pub fn defmt_print_begin() -> Result<DefmtPrint> {
     let cargo_bin = util::cargo_home()?.join("bin").join("defmt-print");
-    let private = util::target_dir().join("tools/bin/defmt-print");
+    let tools = util::target_dir().join("tools");
+    let private = tools.join("bin/defmt-print");
     let candidates: Vec<PathBuf> = util::which("defmt-print")
         .into_iter()
         .chain([cargo_bin.clone(), private.clone()])
         .collect();
     if let Some(found) = candidates.iter().find(|c| defmt_print_is_1x(c)) {
-        return Ok(found.clone());
+        return Ok(DefmtPrint::Ready(found.clone()));
     }
     let other = candidates.iter().take(2).any(|c| util::is_executable(c));
+    std::fs::create_dir_all(&tools).map_err(|e| format!("{}: {e}", tools.display()))?;
+    let log = tools.join("defmt-print-install.log");
     let mut install = util::cargo();
     install.args([
         "install",
@@ -546,28 +595,34 @@ pub fn defmt_print() -> Result<PathBuf> {
         "--version",
         DEFMT_PRINT_VERSION,
         "--locked",
-        "--quiet",
     ]);
     let bin = match defmt_install(other) {
         DefmtInstall::CargoHome => {
-            say(P, format!("first use: installing defmt-print {DEFMT_PRINT_VERSION} (cargo install --locked, ~1-2 min, once): it decodes the image's defmt log"));
+            say(P, format!("first use: installing defmt-print {DEFMT_PRINT_VERSION} (cargo install --locked, ~1-2 min, once; output in {}): it decodes the image's defmt log", log.display()));
             cargo_bin
         }
         DefmtInstall::Private => {
-            let root = util::target_dir().join("tools");
-            say(P, format!("first use: installing defmt-print {DEFMT_PRINT_VERSION} into {} (the installed defmt-print is not 1.x; left alone)", root.display()));
-            install.arg("--root").arg(&root);
+            say(P, format!("first use: installing defmt-print {DEFMT_PRINT_VERSION} into {} (the installed defmt-print is not 1.x; left alone; output in {})", tools.display(), log.display()));
+            install.arg("--root").arg(&tools);
             private
         }
     };
-    util::run_or_say(&mut install)?;
-    if !defmt_print_is_1x(&bin) {
-        bail!(
-            "defmt-print was installed but {} does not run",
-            bin.display()
-        );
-    }
-    Ok(bin)
+    let out = std::fs::File::create(&log).map_err(|e| format!("{}: {e}", log.display()))?;
+    let err = out
+        .try_clone()
+        .map_err(|e| format!("{}: {e}", log.display()))?;
+    let child = install
+        .stdin(std::process::Stdio::null())
+        .stdout(out)
+        .stderr(err)
+        .spawn()
+        .map_err(|e| format!("cannot run {}: {e}", util::show(&install)))?;
+    Ok(DefmtPrint::Installing { child, log, bin })
+}
+
+/// defmt-print 1.x, installed first if there is none.
+pub fn defmt_print() -> Result<PathBuf> {
+    defmt_print_begin()?.wait()
 }
 
 /// `cargo xtask setup`: everything `cargo qemu` needs, nothing built.
