@@ -44,7 +44,7 @@
 //!   [`IOEXT_595`] '595) at once, instead of SPI2/TIM1/DMA (QEMU 7.2's
 //!   STM32F405 has no DMA controller and no TIM1). Its inputs are buttons
 //!   with pull-ups, all open at boot; the test hook is a console on USART1
-//!   (QEMU's first `-serial`, `QEMU_CONSOLE` in `scripts/qemu-run`) that
+//!   (QEMU's first `-serial`, `QEMU_CONSOLE` in `cargo xtask qemu-run`) that
 //!   takes lines `press N` / `release N` (N = receive bit 0..15 in wire
 //!   order: press closes the contact, the bit reads 0), polled at every
 //!   transfer and logged (`ioext console: …`).
