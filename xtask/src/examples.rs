@@ -116,6 +116,20 @@ pub fn runnable(ex: &Example) -> String {
         .collect()
 }
 
+/// Whether 127.0.0.1:5020 can be listened on, trying for up to `timeout`.
+fn port_free_within(timeout: Duration) -> bool {
+    let t0 = Instant::now();
+    loop {
+        if std::net::TcpListener::bind("127.0.0.1:5020").is_ok() {
+            return true;
+        }
+        if t0.elapsed() > timeout {
+            return false;
+        }
+        std::thread::sleep(Duration::from_millis(100));
+    }
+}
+
 /// `cargo qemu`, as the README says, in a process group of its own.
 struct Booted {
     child: Child,
@@ -125,7 +139,8 @@ struct Booted {
 impl Booted {
     fn start(dir: &Path) -> Result<Self> {
         use std::os::unix::process::CommandExt;
-        if std::net::TcpListener::bind("127.0.0.1:5020").is_err() {
+        // The previous example's QEMU may still be closing its socket.
+        if !port_free_within(Duration::from_secs(10)) {
             bail!("127.0.0.1:5020 is in use: the examples talk to cargo qemu there (stop what listens on it)");
         }
         let log = dir.join("qemu.log");
@@ -176,11 +191,23 @@ impl Booted {
     }
 
     fn stop(&mut self) {
-        // The group: cargo, the runner, QEMU and defmt-print.
-        let _ = Command::new("kill")
-            .args(["-TERM", "--", &format!("-{}", self.child.id())])
-            .status();
+        // The group: cargo, the runner, QEMU and defmt-print. Wait until
+        // the whole group is gone (QEMU may outlive cargo a moment).
+        let group = format!("-{}", self.child.id());
+        let _ = Command::new("kill").args(["-TERM", "--", &group]).status();
         let _ = self.child.wait();
+        let t0 = Instant::now();
+        while t0.elapsed() < Duration::from_secs(10) {
+            let alive = Command::new("kill")
+                .args(["-0", "--", &group])
+                .stderr(Stdio::null())
+                .status()
+                .is_ok_and(|s| s.success());
+            if !alive {
+                break;
+            }
+            std::thread::sleep(Duration::from_millis(50));
+        }
     }
 }
 
