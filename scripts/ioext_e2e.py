@@ -47,7 +47,7 @@ BUTTON = 3
 
 
 def write_many(client, address, values, sid=1):
-    r = client.write_registers(address, values, slave=sid)
+    r = client.write_registers(address, values, device_id=sid)
     if r.isError():
         raise Failure(f"write 0x{address:04X} = {[hex(v) for v in values]} failed: {r}")
 

@@ -87,7 +87,7 @@ def timed(call, *args, **kwargs):
 
 
 def read(client, address, count, sid):
-    r = timed(client.read_holding_registers, address, count=count, slave=sid)
+    r = timed(client.read_holding_registers, address, count=count, device_id=sid)
     if r.isError():
         raise Failure(f"id {sid}: read 0x{address:04X} x{count} failed: {r}")
     return r.registers
@@ -95,9 +95,9 @@ def read(client, address, count, sid):
 
 def write_one(client, address, value, sid, multiple):
     if multiple:
-        r = timed(client.write_registers, address, [value], slave=sid)
+        r = timed(client.write_registers, address, [value], device_id=sid)
     else:
-        r = timed(client.write_register, address, value, slave=sid)
+        r = timed(client.write_register, address, value, device_id=sid)
     if r.isError():
         raise Failure(f"id {sid}: write 0x{address:04X} = {value} failed: {r}")
 
@@ -139,7 +139,7 @@ def scenario(client, move_timeout):
 
     start = time.monotonic()
     for sid, *_, target in AXES:
-        r = timed(client.write_registers, SET_POSITION, words(target), slave=sid)
+        r = timed(client.write_registers, SET_POSITION, words(target), device_id=sid)
         if r.isError():
             raise Failure(f"id {sid}: set position {target} failed: {r}")
     print(f"ok: targets {[(a[0], a[4]) for a in AXES]} written by FC 0x10")
@@ -156,7 +156,7 @@ def scenario(client, move_timeout):
     move_s = time.monotonic() - start
     check(True, f"both axes arrived: positions {positions} after {move_s:.2f} s ({polls} polls)")
 
-    r = timed(client.read_holding_registers, UNKNOWN, count=1, slave=1)
+    r = timed(client.read_holding_registers, UNKNOWN, count=1, device_id=1)
     check(
         isinstance(r, ExceptionResponse) and r.exception_code == 2,
         f"unknown command 0x{UNKNOWN:04X}: exception {getattr(r, 'exception_code', r)} (02 expected)",
@@ -225,7 +225,7 @@ def save(client, timeout):
     start = time.monotonic()
     refusals = 0
     while True:
-        r = timed(client.write_register, WRITE_SETTINGS, 0, slave=1)
+        r = timed(client.write_register, WRITE_SETTINGS, 0, device_id=1)
         if not r.isError():
             break
         if not (isinstance(r, ExceptionResponse) and r.exception_code == 4):

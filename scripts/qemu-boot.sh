@@ -52,7 +52,7 @@ FLASH="$work/flash.bin"
 start_qemu() {
     log_file="$work/$1.log"
     err_file="$work/$1.err"
-    QEMU_MODBUS=$2 QEMU_FLASH=$FLASH QEMU_FRESH=$3 QEMU_CONSOLE=${4:-null} setsid scripts/qemu-run "$ELF" >"$log_file" 2>"$err_file" </dev/null &
+    QEMU_MODBUS=$2 QEMU_FLASH=$FLASH QEMU_FRESH=$3 QEMU_CONSOLE=${4:-null} setsid cargo xtask qemu-run "$ELF" >"$log_file" 2>"$err_file" </dev/null &
     qemu_pid=$!
 }
 

@@ -41,14 +41,14 @@ class Failure(Exception):
 
 
 def read(client, address, count, sid):
-    r = client.read_holding_registers(address, count=count, slave=sid)
+    r = client.read_holding_registers(address, count=count, device_id=sid)
     if r.isError():
         raise Failure(f"id {sid}: read 0x{address:04X} x{count} failed: {r}")
     return r.registers
 
 
 def write(client, address, values, sid):
-    r = client.write_registers(address, values, slave=sid)
+    r = client.write_registers(address, values, device_id=sid)
     if r.isError():
         raise Failure(f"id {sid}: write 0x{address:04X} = {values} failed: {r}")
 

@@ -1,6 +1,6 @@
 //! Instruction counts of the chain's DMA driver (`drivers::chain_spi`,
 //! the board's code) per streaming batch on 8 chips (5 windows of 8 bytes),
-//! under QEMU with the armcount plugin (`scripts/chain-cpu`): a bench, not
+//! under QEMU with the armcount plugin (`cargo chain-cpu`): a bench, not
 //! a test. Counted: the control tick's start of a batch (plan copied,
 //! streams armed, first gap) and its hand-over (`poll`: 5 rows copied
 //! out), and each interrupt's work: the end of a gap (TIM7), the end of a
@@ -19,7 +19,7 @@ fn main() {}
 #[macro_use]
 mod common;
 
-/// Batches (scripts/chain-cpu divides by it).
+/// Batches (cargo chain-cpu divides by it).
 #[cfg(target_os = "none")]
 const N: u32 = 200;
 

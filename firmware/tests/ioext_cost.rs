@@ -1,6 +1,6 @@
 //! Instruction counts of the I/O extension driver's start of a transfer
 //! (`IoExtPort::run`: buffers, registers, pins, CS) on the board driver's
-//! code, under QEMU with the armcount plugin (`scripts/ioext-cpu`): a bench,
+//! code, under QEMU with the armcount plugin (`cargo ioext-cpu`): a bench,
 //! not a test. QEMU only (feature `qemu`), and only the start: QEMU's
 //! STM32F405 has no DMA controller and no TIM1 (their registers read 0), so
 //! the start runs every instruction it runs on a board, while the end (the
@@ -14,7 +14,7 @@ fn main() {}
 #[macro_use]
 mod common;
 
-/// Iterations (scripts/ioext-cpu divides by it).
+/// Iterations (cargo ioext-cpu divides by it).
 #[cfg(target_os = "none")]
 const N: u32 = 200;
 

@@ -2,7 +2,7 @@
 //! handler (`failsafe`: interrupts off, STBY low, the message through defmt,
 //! `udf`) into the platform's HardFault handler, which ends QEMU with exit
 //! status 1 — what makes a crashed image fail a test run instead of hanging
-//! it. QEMU only (feature `qemu`): `scripts/qemu-run --test` passes this
+//! it. QEMU only (feature `qemu`): `cargo xtask qemu-run --test` passes this
 //! binary exactly when QEMU exits with status 1 after the panic message.
 //! On the board, `failsafe` checks the STBY pin itself.
 #![cfg_attr(target_os = "none", no_std, no_main)]

@@ -83,7 +83,7 @@ pub const STREAM_WINDOWS: u64 = 5;
 /// DMA driver's TIM7 phases, 821 + 369 ns) and ~1 µs of interrupt latency.
 pub const WINDOW_OVERHEAD_NS: u64 = 2_190;
 /// The tick's computation per axis and its fixed part, ns at 168 MHz
-/// (`scripts/tick-cpu`, 5 kHz build: 16 309 cycles for 8 axes streaming
+/// (`cargo tick-cpu`, 5 kHz build: 16 309 cycles for 8 axes streaming
 /// incl. flash wait states ≈ 12.1 µs per axis, taken as 12.5; the driver's
 /// start and hand-over ≈ 3 µs).
 pub const COMPUTE_NS_PER_AXIS: u64 = 12_500;

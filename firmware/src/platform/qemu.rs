@@ -49,8 +49,8 @@
 //!   order: press closes the contact, the bit reads 0), logged as
 //!   `ioext console: …`.
 //! * **Test console and fault injection**: USART1 (QEMU's first `-serial`,
-//!   `QEMU_CONSOLE` in `scripts/qemu-run`) takes the lines of
-//!   `sim::ConsoleLine`, read at every control tick ([`TickTimer::acknowledge`],
+//!   `QEMU_CONSOLE` in `cargo xtask qemu-run`) takes the lines of
+//!   `stepbridge_sim::ConsoleLine`, read at every control tick ([`TickTimer::acknowledge`],
 //!   the tick's first step) and logged (`sim console: …`): the buttons
 //!   above, and faults of the simulated hardware for the bring-up checks
 //!   (`stepctl doctor`): `chip K dead [HH]` / `revive` / `reset` / `uvlo` /

@@ -5,7 +5,7 @@
 //! restart.
 //!
 //! * The file is named by the `flash=PATH` semihosting argument
-//!   (`scripts/qemu-run` passes `target/qemu-flash.bin`, or `QEMU_FLASH`);
+//!   (`cargo xtask qemu-run` passes `target/qemu-flash.bin`, or `QEMU_FLASH`);
 //!   a missing file is created erased, a short one reads erased past its
 //!   end. Without the argument the flash lives in RAM only: every boot is
 //!   factory-fresh.

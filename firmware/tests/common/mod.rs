@@ -2,8 +2,8 @@
 //! each test needs, through the same `platform` and `board` functions.
 #![allow(dead_code)] // each test binary uses part of it
 
-/// A marker function for the armcount plugin (`scripts/chain-cpu`,
-/// `scripts/ioext-cpu`): the benches call it at the edges of a counted
+/// A marker function for the armcount plugin (`cargo chain-cpu`,
+/// `cargo ioext-cpu`): the benches call it at the edges of a counted
 /// region, the plugin finds it by its symbol.
 #[allow(unused_macros)] // only the armcount benches use it
 macro_rules! marker {

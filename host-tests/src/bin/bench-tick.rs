@@ -1,5 +1,5 @@
 //! Instruction-count benchmark of the control tick (run under callgrind by
-//! `scripts/bench`; not a timed test).
+//! `cargo xtask bench`; not a timed test).
 //!
 //! `bench-tick profile N`: N ticks of one profile generator in a long move.
 //! `bench-tick group N`: N ticks of 8 axes streaming against 8 simulated

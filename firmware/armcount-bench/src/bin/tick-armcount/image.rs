@@ -1,29 +1,14 @@
-//! The control tick's CPU work on the real target (thumbv7em, release),
-//! region by region, between marker functions that scripts/tick-cpu hands to
-//! the armcount plugin. The workload is `scripts/bench`'s: 8 axes (logical
-//! step modes 1/1 … 1/256 on 1/128 chips) streaming long moves against 8
-//! simulated powerSTEP01s.
-//!
-//! Counters: 1 `AxisGroup::prepare` (plan: profile generator, setpoints,
-//! schedule and encode), 2 `Chain::run_into` without the simulated bus
-//! (window loop, decode), 3 `AxisGroup::finish` (absorb the replies), 4 one
-//! `Profile::tick` of a long move, 5 an empty marker pair (calibration).
-//! The simulated chips' own work (the bus window and the chip physics) is
-//! outside every counter.
-#![no_std]
-#![no_main]
-
 use bridge_logic::motion::{Axis, AxisConfig, AxisGroup, Limits, Profile};
 use bridge_logic::powerstep::chain::{Chain, ChainBus, Replies};
 use bridge_logic::powerstep::{DriveMode, StepSel};
-use stepbridge_sim::SimChain;
 use core::hint::black_box;
 use cortex_m_rt::entry;
+use stepbridge_sim::SimChain;
 
 /// Control period, µs: the firmware's build setting `STEPBRIDGE_TICK_HZ`.
 const TICK_US: u32 = bridge_logic::rate::TICK_US;
 
-/// Measured ticks of the 8-axis group (the script divides by it).
+/// Measured ticks of the 8-axis group (xtask divides by it).
 const N: u32 = 20_000;
 /// Measured profile ticks.
 const NP: u32 = N;

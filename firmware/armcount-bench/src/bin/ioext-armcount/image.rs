@@ -1,12 +1,3 @@
-//! The I/O extension's CPU work for one 256-bit transfer, region by region,
-//! between marker functions that scripts/ioext-cpu hands to the armcount
-//! plugin: counter 1 `IoExtension::tick` (plan, 24 lamps), 2 the SPI
-//! engine's byte packing and unpacking, 3 `IoExtension::complete` (32
-//! debounced inputs), 4 the timer engine's BSRR table and port samples,
-//! 5 an empty marker pair (calibration). 8 axes, every input and lamp mapped.
-#![no_std]
-#![no_main]
-
 use bridge_logic::ioext::{
     Action, AxisOutputs, Clocks, Config, Input, InputBit, IoExtension, IoSettings, Output,
     OutputBit, SpiMode, WireBits,
@@ -14,7 +5,7 @@ use bridge_logic::ioext::{
 use core::hint::black_box;
 use cortex_m_rt::entry;
 
-/// Iterations (the script divides by it).
+/// Iterations (xtask divides by it).
 const N: u32 = 200;
 
 macro_rules! marker {

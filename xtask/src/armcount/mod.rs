@@ -1,0 +1,893 @@
+//! The instruction-count benchmarks on the real ISA: bench images for
+//! thumbv7em run under QEMU 7.2 with the repository's own TCG plugin
+//! (`tools/armcount`), which counts every guest instruction between marker
+//! functions; the analysis here adds per-function breakdowns, 64-bit
+//! division helper calls, ART cache misses and a Cortex-M4 cycle estimate.
+//!
+//! * `tick-cpu`: the control tick (8 axes streaming against simulated
+//!   chips: `cargo xtask bench`'s workload), `firmware/armcount-bench`'s
+//!   `tick-armcount`. `STEPBRIDGE_TICK_HZ` selects the build's tick rate.
+//! * `chain-cpu`: the chain's DMA driver per streaming batch
+//!   (`firmware/tests/chain_cost.rs`).
+//! * `ioext-cpu`: the I/O extension per 256-bit transfer
+//!   (`ioext-armcount`) and the board driver's transfer start
+//!   (`firmware/tests/ioext_cost.rs`).
+//!
+//! Flash wait states: 5 at 168 MHz and 2.7–3.6 V (RM0090 §3.5.1, table 10
+//! "Number of wait states according to CPU clock (HCLK) frequency"); a
+//! line the ART cache (`tools/armcount`'s model, RM0090 §3.4.2) misses
+//! costs them, half hidden by the prefetch buffer when the miss is
+//! sequential (RM0090 §3.4.1): 2.5 cycles, else 5. Not timed tests.
+
+pub mod cycles;
+pub mod disasm;
+
+use std::collections::HashMap;
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use crate::setup::{self, Qemu, TARGET};
+use crate::util::{self, bail, Result};
+use disasm::Disasm;
+
+/// CPU clock of the board (RM0090 §6: 168 MHz maximum; board.rs's PLL).
+const SYSCLK_HZ: f64 = 168e6;
+/// Flash wait states at 168 MHz (RM0090 table 10).
+const WAIT_STATES: f64 = 5.0;
+/// Control-tick rates the CPU shares are shown for.
+const RATES_HZ: [u32; 4] = [1000, 2000, 5000, 10_000];
+
+/// One counter's totals from the plugin.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Totals {
+    pub insns: u64,
+    pub blocks: u64,
+    pub lines: u64,
+    pub warm_seq: u64,
+    pub warm_jump: u64,
+    pub cold_seq: u64,
+    pub cold_jump: u64,
+}
+
+/// One instruction's count in one counter.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PcCount {
+    pub pc: u64,
+    pub counter: usize,
+    pub count: u64,
+    pub taken: u64,
+}
+
+/// The plugin's report (`tools/armcount`'s format).
+#[derive(Debug, Default)]
+pub struct Counts {
+    pub totals: HashMap<usize, Totals>,
+    pub pcs: Vec<PcCount>,
+}
+
+impl Counts {
+    pub fn parse(text: &str) -> Result<Self> {
+        let mut c = Counts::default();
+        let mut lines = text.lines();
+        if lines.next() != Some("armcount-report 1") {
+            bail!("not an armcount report");
+        }
+        for l in lines {
+            let f: Vec<&str> = l.split_whitespace().collect();
+            let num = |i: usize| -> Result<u64> {
+                f.get(i)
+                    .and_then(|v| v.parse().ok())
+                    .ok_or_else(|| format!("bad report line '{l}'").into())
+            };
+            match f.first() {
+                Some(&"counter") => {
+                    let k = usize::try_from(num(1)?).map_err(|_| "bad counter")?;
+                    c.totals.insert(
+                        k,
+                        Totals {
+                            insns: num(3)?,
+                            blocks: num(5)?,
+                            lines: num(7)?,
+                            warm_seq: num(9)?,
+                            warm_jump: num(10)?,
+                            cold_seq: num(12)?,
+                            cold_jump: num(13)?,
+                        },
+                    );
+                }
+                Some(&"pc") => {
+                    let pc = f
+                        .get(1)
+                        .and_then(|a| u64::from_str_radix(a, 16).ok())
+                        .ok_or_else(|| format!("bad report line '{l}'"))?;
+                    c.pcs.push(PcCount {
+                        pc,
+                        counter: usize::try_from(num(3)?).map_err(|_| "bad counter")?,
+                        count: num(4)?,
+                        taken: num(5)?,
+                    });
+                }
+                _ => {}
+            }
+        }
+        Ok(c)
+    }
+
+    pub fn insns(&self, k: usize) -> u64 {
+        self.totals.get(&k).map_or(0, |t| t.insns)
+    }
+}
+
+// --- running ---------------------------------------------------------------
+
+/// Build the plugin (host, release profile): its path.
+fn plugin() -> Result<PathBuf> {
+    util::run(util::cargo().args(["build", "-q", "--release", "-p", "armcount"]))?;
+    let so = util::target_dir().join("release/libarmcount.so");
+    if !so.is_file() {
+        bail!("{} missing after the build", so.display());
+    }
+    Ok(so)
+}
+
+/// Build a bin of `firmware/armcount-bench` for the target (the workspace's
+/// release profile) in a target directory of its own: RUSTFLAGS replaces
+/// the root config's ARM rustflags (these images link no defmt).
+fn bench_image(bin: &str, features: &[&str]) -> Result<PathBuf> {
+    let dir = util::target_dir().join("armcount-bench");
+    let mut c = util::cargo();
+    c.args([
+        "build",
+        "-q",
+        "--release",
+        "-p",
+        "armcount-bench",
+        "--bin",
+        bin,
+        "--target",
+        TARGET,
+    ])
+    .env("CARGO_TARGET_DIR", &dir)
+    .env("RUSTFLAGS", "-C link-arg=-Tlink.x -C link-arg=--nmagic");
+    for f in features {
+        c.args(["--features", f]);
+    }
+    util::run(&mut c)?;
+    Ok(dir.join(TARGET).join("release").join(bin))
+}
+
+/// Build an on-target test of the firmware (feature qemu, release) without
+/// running it: its executable.
+fn firmware_test_image(name: &str) -> Result<PathBuf> {
+    let mut c = util::cargo();
+    c.args([
+        "test",
+        "-q",
+        "-p",
+        "firmware",
+        "--target",
+        TARGET,
+        "--release",
+        "--features",
+        "qemu",
+        "--test",
+        name,
+        "--no-run",
+        "--message-format=json-render-diagnostics",
+    ]);
+    let out = util::capture(&mut c)?;
+    if !out.status.success() {
+        eprint!("{}", String::from_utf8_lossy(&out.stderr));
+        bail!("{} failed", util::show(&c));
+    }
+    executable_of(&String::from_utf8_lossy(&out.stdout), name)
+        .ok_or_else(|| format!("cargo named no executable for test {name}").into())
+}
+
+/// The `"executable"` of test target `name` in cargo's JSON messages.
+pub fn executable_of(json_lines: &str, name: &str) -> Option<PathBuf> {
+    let want = format!("\"name\":\"{name}\"");
+    json_lines
+        .lines()
+        .filter(|l| l.contains("\"reason\":\"compiler-artifact\"") && l.contains(&want))
+        .find_map(|l| {
+            let rest = l.split_once("\"executable\":\"")?.1;
+            let path = rest.split_once('"')?.0;
+            Some(PathBuf::from(path))
+        })
+}
+
+fn objdump(elf: &Path, lines: bool) -> Result<Disasm> {
+    let tool = setup::llvm_tool("llvm-objdump")?;
+    let mut c = Command::new(tool);
+    c.arg("-d");
+    if lines {
+        c.arg("-l");
+    }
+    c.args(["--no-show-raw-insn", "--demangle"]).arg(elf);
+    let out = util::capture(&mut c)?;
+    if !out.status.success() {
+        bail!(
+            "{} failed: {}",
+            util::show(&c),
+            String::from_utf8_lossy(&out.stderr)
+        );
+    }
+    Ok(Disasm::parse(&String::from_utf8_lossy(&out.stdout)))
+}
+
+/// A bench run: the image, its marker functions (counter 0 first) and the
+/// function that writes the report, QEMU's serial ports and semihosting.
+struct Run<'a> {
+    elf: &'a Path,
+    marks: &'a [&'a str],
+    dump: &'a str,
+    serials: &'a [&'a str],
+    semihosting: String,
+    out: PathBuf,
+}
+
+fn count(qemu: &Qemu, plugin: &Path, d: &Disasm, r: &Run) -> Result<Counts> {
+    let addr = |name: &str| -> Result<u64> {
+        d.symbol(name)
+            .ok_or_else(|| format!("no function {name} in {}", r.elf.display()).into())
+    };
+    let mut arg = plugin.display().to_string();
+    for m in r.marks {
+        let _ = write!(arg, ",mark={:#x}", addr(m)?);
+    }
+    let _ = write!(arg, ",dump={:#x},out={}", addr(r.dump)?, r.out.display());
+    if let Some(dir) = r.out.parent() {
+        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    }
+    let _ = std::fs::remove_file(&r.out);
+    let mut c = Command::new(&qemu.bin);
+    c.args(["-M", "netduinoplus2", "-nographic", "-monitor", "none"]);
+    for s in r.serials {
+        c.args(["-serial", s]);
+    }
+    c.arg("-semihosting-config").arg(&r.semihosting);
+    c.arg("-kernel")
+        .arg(r.elf)
+        .arg("-plugin")
+        .arg(&arg)
+        .args(["-d", "plugin"]);
+    if let Some(dir) = &qemu.data_dir {
+        c.arg("-L").arg(dir);
+    }
+    let out = util::capture(&mut c)?;
+    if !out.status.success() {
+        eprint!("{}", String::from_utf8_lossy(&out.stderr));
+        bail!(
+            "the bench {} failed (QEMU status {})",
+            r.elf.display(),
+            util::code(out.status)
+        );
+    }
+    let text = std::fs::read_to_string(&r.out)
+        .map_err(|e| format!("no report from the plugin ({}): {e}", r.out.display()))?;
+    Counts::parse(&text)
+}
+
+// --- analysis --------------------------------------------------------------
+
+/// One counter, per iteration.
+#[derive(Debug, Default)]
+pub struct Stats {
+    pub raw: f64,
+    /// Without the markers and the bench's own loop.
+    pub net: f64,
+    pub div_insns: f64,
+    pub div_cycles: f64,
+    /// At the three models of `cycles::MODELS`.
+    pub cycles: [f64; 3],
+    /// Calls of division helpers, by name.
+    pub calls: Vec<(String, f64)>,
+    pub lines: f64,
+    pub warm: (f64, f64),
+    pub cold: (f64, f64),
+    /// Cache lines the measured code covers.
+    pub footprint: usize,
+    pub by_func: Vec<(String, f64)>,
+    pub by_file: Vec<(String, f64)>,
+}
+
+impl Stats {
+    /// Flash wait cycles per iteration: every warm miss, half hidden when
+    /// sequential.
+    pub fn flash_wait(&self) -> f64 {
+        WAIT_STATES / 2.0 * self.warm.0 + WAIT_STATES * self.warm.1
+    }
+}
+
+/// Code that belongs to the bench, not to what it measures.
+fn is_bench(func: Option<&str>) -> bool {
+    func.is_none_or(|f| f.contains("armcost_mark") || f.contains("__cortex_m_rt_main"))
+}
+
+/// A 64-bit (or any) division helper of compiler-builtins.
+fn is_div(func: Option<&str>) -> bool {
+    func.is_some_and(|f| {
+        f.contains("div") || f.starts_with("__aeabi_l") || f.starts_with("__aeabi_ul")
+    })
+}
+
+/// The called symbol of a `bl` to a division helper.
+fn div_call(insn: &disasm::Insn) -> Option<&str> {
+    if !insn.mnemonic.starts_with("bl") {
+        return None;
+    }
+    let sym = insn.operands.split_once('<')?.1.split_once('>')?.0;
+    let helper = (sym.starts_with("__aeabi_") && sym.contains("div"))
+        || (sym.starts_with("__") && sym.contains("divmod"));
+    helper.then_some(sym)
+}
+
+/// "name::h0123456789abcdef" → "name".
+fn strip_hash(f: &str) -> &str {
+    match f.rsplit_once("::h") {
+        Some((head, h)) if h.len() == 16 && h.bytes().all(|b| b.is_ascii_hexdigit()) => head,
+        _ => f,
+    }
+}
+
+/// A source path as the report shows it: relative to the workspace, or
+/// from `library/` (the Rust standard library) or the crate directory (a
+/// registry crate).
+fn short_path(file: &str, root: &str) -> String {
+    if let Some(rel) = file.strip_prefix(root).and_then(|r| r.strip_prefix('/')) {
+        return rel.to_owned();
+    }
+    if let Some(i) = file.find("/library/") {
+        return file.get(i + 1..).unwrap_or(file).to_owned();
+    }
+    if let Some(i) = file.find("/registry/src/") {
+        let rest = file.get(i + "/registry/src/".len()..).unwrap_or(file);
+        return rest.split_once('/').map_or(rest, |(_, r)| r).to_owned();
+    }
+    file.to_owned()
+}
+
+fn top(map: HashMap<String, u64>, n: f64) -> Vec<(String, f64)> {
+    let mut v: Vec<(String, f64)> = map.into_iter().map(|(k, c)| (k, c as f64 / n)).collect();
+    v.sort_by(|a, b| b.1.total_cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
+    v.truncate(10);
+    v
+}
+
+pub fn stats(d: &Disasm, c: &Counts, k: usize, n: f64) -> Stats {
+    let root = util::root().display().to_string();
+    let mut s = Stats {
+        raw: c.insns(k) as f64 / n,
+        ..Stats::default()
+    };
+    let (mut net, mut div, mut divcyc) = (0u64, 0u64, 0u64);
+    let mut cyc = [0u64; 3];
+    let mut calls: HashMap<String, u64> = HashMap::new();
+    let (mut by_func, mut by_file): (HashMap<String, u64>, HashMap<String, u64>) =
+        Default::default();
+    let mut lines = std::collections::HashSet::new();
+    for p in c.pcs.iter().filter(|p| p.counter == k) {
+        let func = d.func(p.pc);
+        if is_div(func) {
+            div += p.count;
+        }
+        if let Some(insn) = d.insns.get(&p.pc) {
+            if let Some(sym) = div_call(insn) {
+                *calls.entry(sym.to_owned()).or_default() += p.count;
+            }
+            let after_ldst = d
+                .previous(p.pc)
+                .is_some_and(|i| cycles::is_single_ldst(&i.mnemonic));
+            let cost = |m| {
+                cycles::cycles(
+                    &insn.mnemonic,
+                    &insn.operands,
+                    p.count,
+                    p.taken,
+                    after_ldst,
+                    m,
+                )
+            };
+            if is_div(func) {
+                divcyc += cost(cycles::MID);
+            }
+            if !is_bench(func) {
+                for (slot, (_, m)) in cyc.iter_mut().zip(cycles::MODELS) {
+                    *slot += cost(m);
+                }
+            }
+        }
+        if is_bench(func) {
+            continue;
+        }
+        net += p.count;
+        lines.insert(p.pc >> 4);
+        *by_func
+            .entry(strip_hash(func.unwrap_or("?")).to_owned())
+            .or_default() += p.count;
+        let file = d
+            .file(p.pc)
+            .map_or_else(|| "?".to_owned(), |f| short_path(f, &root));
+        *by_file.entry(file).or_default() += p.count;
+    }
+    s.net = net as f64 / n;
+    s.div_insns = div as f64 / n;
+    s.div_cycles = divcyc as f64 / n;
+    for (slot, v) in s.cycles.iter_mut().zip(cyc) {
+        *slot = v as f64 / n;
+    }
+    let mut calls: Vec<(String, f64)> = calls.into_iter().map(|(k, v)| (k, v as f64 / n)).collect();
+    calls.sort_by(|a, b| b.1.total_cmp(&a.1).then_with(|| a.0.cmp(&b.0)));
+    s.calls = calls;
+    let t = c.totals.get(&k).copied().unwrap_or_default();
+    s.lines = t.lines as f64 / n;
+    s.warm = (t.warm_seq as f64 / n, t.warm_jump as f64 / n);
+    s.cold = (t.cold_seq as f64 / n, t.cold_jump as f64 / n);
+    s.footprint = lines.len();
+    s.by_func = top(by_func, n);
+    s.by_file = top(by_file, n);
+    s
+}
+
+fn print_counter(k: usize, name: &str, s: &Stats) {
+    println!("counter {k}: {name}");
+    println!(
+        "  instructions: {:.1} raw, {:.1} net (without markers and the bench loop)",
+        s.raw, s.net
+    );
+    let calls: Vec<String> = s.calls.iter().map(|(f, c)| format!("{f} {c:.2}")).collect();
+    println!(
+        "  division helpers: {:.1} instructions ({:.0} %), ~{:.0} cycles; calls: {}",
+        s.div_insns,
+        100.0 * s.div_insns / s.net.max(1e-9),
+        s.div_cycles,
+        if calls.is_empty() {
+            "none".to_owned()
+        } else {
+            calls.join(", ")
+        }
+    );
+    println!(
+        "  cycles at 0 wait states ({} / {} / {}): {:.0} / {:.0} / {:.0} (CPI {:.2} at {})",
+        cycles::MODELS[0].0,
+        cycles::MODELS[1].0,
+        cycles::MODELS[2].0,
+        s.cycles[0],
+        s.cycles[1],
+        s.cycles[2],
+        s.cycles[1] / s.net.max(1e-9),
+        cycles::MODELS[1].0
+    );
+    println!(
+        "  ART cache (64 x 16 B, LRU): code footprint {} lines ({} B); lines fetched {:.0}; misses: warm {:.1} sequential + {:.1} jumps, cold {:.1} + {:.1}",
+        s.footprint,
+        s.footprint * 16,
+        s.lines,
+        s.warm.0,
+        s.warm.1,
+        s.cold.0,
+        s.cold.1
+    );
+    println!("  by function:");
+    for (f, c) in &s.by_func {
+        println!("    {c:9.1}  {}", f.chars().take(100).collect::<String>());
+    }
+    println!("  by source file (innermost line-table location):");
+    for (f, c) in &s.by_file {
+        println!("    {c:9.1}  {}", f.chars().take(100).collect::<String>());
+    }
+    println!();
+}
+
+fn tick_hz() -> u32 {
+    std::env::var("STEPBRIDGE_TICK_HZ")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1000)
+}
+
+/// CPU share of `cycles` per event at `hz` events per second.
+pub fn share(cycles: f64, hz: u32) -> f64 {
+    100.0 * cycles * f64::from(hz) / SYSCLK_HZ
+}
+
+// --- the three benches -----------------------------------------------------
+
+/// `cargo xtask tick-cpu`.
+pub fn tick_cpu(_args: &[String]) -> Result {
+    const N: f64 = 20_000.0;
+    setup::ensure_target()?;
+    let qemu = setup::qemu()?;
+    let plugin = plugin()?;
+    let elf = bench_image("tick-armcount", &["sim"])?;
+    let d = objdump(&elf, true)?;
+    let out = util::target_dir().join("armcount-bench/tick.out");
+    let c = count(
+        &qemu,
+        &plugin,
+        &d,
+        &Run {
+            elf: &elf,
+            marks: &[
+                "armcost_mark_off",
+                "armcost_mark_prepare",
+                "armcost_mark_run",
+                "armcost_mark_finish",
+                "armcost_mark_profile",
+                "armcost_mark_cal",
+            ],
+            dump: "armcost_mark_dump",
+            serials: &["none"],
+            semihosting: "enable=on,target=native".into(),
+            out,
+        },
+    )?;
+    let names = [
+        "prepare (plan + profile generator + schedule/encode)",
+        "run_into minus bus windows (window loop + decode)",
+        "finish (absorb replies)",
+        "profile mode: one Profile::tick",
+        "calibration: empty marker pair",
+    ];
+    println!("N = {N} ticks; Thumb-2 instructions per tick (per call for counters 4 and 5)\n");
+    let s: Vec<Stats> = (1..=5).map(|k| stats(&d, &c, k, N)).collect();
+    for (k, (name, st)) in names.iter().zip(&s).enumerate() {
+        print_counter(k + 1, name, st);
+    }
+    let [prepare, run, finish, profile, _cal] = &s[..] else {
+        bail!("five counters expected");
+    };
+    let tick = [prepare, run, finish];
+    let pf = prepare.net + finish.net;
+    let insn: f64 = tick.iter().map(|t| t.net).sum();
+    println!(
+        "SUMMARY whole 8-axis tick: prepare+finish (callgrind's scope) {pf:.0} insns ({:.0}/axis); + run_into CPU part {insn:.0} ({:.0}/axis)",
+        pf / 8.0,
+        insn / 8.0
+    );
+    for (i, (name, _)) in cycles::MODELS.iter().enumerate() {
+        let c1 = prepare.cycles[i] + finish.cycles[i];
+        println!(
+            "  cycles ({name}): prepare+finish {c1:.0}; with run_into {:.0}",
+            c1 + run.cycles[i]
+        );
+    }
+    let warm = tick
+        .iter()
+        .fold((0.0, 0.0), |a, t| (a.0 + t.warm.0, a.1 + t.warm.1));
+    let cold = tick
+        .iter()
+        .fold((0.0, 0.0), |a, t| (a.0 + t.cold.0, a.1 + t.cold.1));
+    println!(
+        "  ART misses/tick (counters 1-3): warm {:.0} seq + {:.0} jump; cold {:.0} seq + {:.0} jump",
+        warm.0, warm.1, cold.0, cold.1
+    );
+    println!(
+        "SUMMARY profile generator: {:.0} insns/axis-tick, cycles {:.0} / {:.0} / {:.0}",
+        profile.net, profile.cycles[0], profile.cycles[1], profile.cycles[2]
+    );
+    println!();
+    let div: f64 = tick
+        .iter()
+        .flat_map(|t| t.calls.iter())
+        .filter(|(f, _)| f.starts_with("__aeabi_"))
+        .map(|(_, c)| c)
+        .sum();
+    let core: f64 = tick.iter().map(|t| t.cycles[1]).sum();
+    let flash: f64 = tick.iter().map(|t| t.flash_wait()).sum();
+    let total = core + flash;
+    let tick_us = 1_000_000 / tick_hz().max(1);
+    println!(
+        "RESULT tick {tick_us} us, 8 axes: {insn:.0} Thumb-2 instructions per tick, {:.0} per axis-tick; 64-bit division calls per tick: {div:.2}",
+        insn / 8.0
+    );
+    println!(
+        "RESULT profile generator: {:.0} instructions per axis-tick",
+        profile.net
+    );
+    println!(
+        "RESULT ART misses per tick (64 x 16 B, LRU, the tick's code alone): {:.0} sequential + {:.0} jumps; with the simulated chips' code in between: {:.0} + {:.0}",
+        warm.0, warm.1, cold.0, cold.1
+    );
+    println!(
+        "RESULT cycles per tick: {core:.0} core + {flash:.0} flash wait = {total:.0} ({WAIT_STATES} wait states; 0 wait states: {core:.0})"
+    );
+    for hz in RATES_HZ {
+        println!(
+            "RESULT CPU share of the tick's computation at {} kHz: {:.1} %",
+            hz / 1000,
+            share(total, hz)
+        );
+    }
+    Ok(())
+}
+
+/// `cargo xtask chain-cpu`: per event of a streaming batch on 8 chips (5
+/// windows of 8 bytes; firmware/tests/chain_cost.rs hands the driver the
+/// events its interrupts would, QEMU having no DMA and no TIM7), the
+/// empty-marker calibration subtracted, then a cycle estimate: 1.5 cycles
+/// per instruction (the control tick's own CPI with wait states is ~1.9;
+/// these paths are short and straight), plus 4 cycles per load or store that
+/// is not a stack or literal-pool access — a peripheral access costs 1 to 4
+/// wait cycles (AHB1 DMA2 / GPIOA, APB2 SPI1 at 84 MHz, APB1 TIM7 at 42
+/// MHz), RAM ones less, so the estimate errs high —, plus the exception
+/// entry and return of every interrupt (12 + 10 cycles on the Cortex-M4 with
+/// the FPU context unused: Cortex-M4 TRM §5.5.1; tail-chaining would save
+/// some). tests/chain_spi.rs logs the real cycles on a board.
+pub fn chain_cpu(_args: &[String]) -> Result {
+    const N: u64 = 200;
+    const WINDOWS: u64 = 5;
+    const ENTRY_EXIT: f64 = 22.0;
+    setup::ensure_target()?;
+    let qemu = setup::qemu()?;
+    let plugin = plugin()?;
+    let elf = firmware_test_image("chain_cost")?;
+    let d = objdump(&elf, false)?;
+    let flash = util::TempDir::new("stepbridge-chain-cost")?;
+    let c = count(
+        &qemu,
+        &plugin,
+        &d,
+        &Run {
+            elf: &elf,
+            marks: &[
+                "armcost_mark_off",
+                "armcost_mark_start",
+                "armcost_mark_gap",
+                "armcost_mark_setup",
+                "armcost_mark_window",
+                "armcost_mark_last",
+                "armcost_mark_poll",
+                "armcost_mark_cal",
+            ],
+            dump: "armcost_mark_dump",
+            serials: &["none", "null"],
+            semihosting: format!(
+                "enable=on,target=native,arg=chain_cost,arg=flash={}",
+                flash.path().join("flash.bin").display()
+            ),
+            out: util::target_dir().join("armcount-bench/chain.out"),
+        },
+    )?;
+    // Loads and stores other than stack and literal-pool ones: every
+    // peripheral access is one of them (RAM ones are counted too).
+    let mut acc: HashMap<usize, u64> = HashMap::new();
+    for p in &c.pcs {
+        if let Some(i) = d.insns.get(&p.pc) {
+            let ldst = i.mnemonic.starts_with("ldr") || i.mnemonic.starts_with("str");
+            if ldst && !i.operands.contains("[sp") && !i.operands.contains("[pc") {
+                *acc.entry(p.counter).or_default() += p.count;
+            }
+        }
+    }
+    let events: [(usize, &str, u64, bool); 6] = [
+        (1, "start of a batch (control tick)", 1, false),
+        (
+            2,
+            "end of a gap (TIM7): CS low, set-up timed",
+            WINDOWS,
+            true,
+        ),
+        (3, "end of a set-up (TIM7): TXDMAEN", WINDOWS, true),
+        (
+            4,
+            "end of a window (DMA2_STREAM0): CS high, next armed, gap",
+            WINDOWS - 1,
+            true,
+        ),
+        (5, "end of the last window (DMA2_STREAM0)", 1, true),
+        (6, "hand-over (poll, control tick)", 1, false),
+    ];
+    let cal = c.insns(7) as f64 / N as f64;
+    println!(
+        "chain DMA driver, streaming batch of {WINDOWS} windows x 8 bytes ({N} batches; empty marker pair {cal:.0} instructions, subtracted)"
+    );
+    let (mut b_insn, mut b_cyc, mut i_insn, mut i_cyc) = (0.0, 0.0, 0.0, 0.0);
+    for (k, name, per, isr) in events {
+        let calls = (N * per) as f64;
+        let insn = c.insns(k) as f64 / calls - cal;
+        let a = acc.get(&k).copied().unwrap_or(0) as f64 / calls;
+        let cyc = 1.5 * insn + 4.0 * a + if isr { ENTRY_EXIT } else { 0.0 };
+        println!(
+            "  {name:58} {insn:6.0} instructions, ~{a:4.0} loads/stores, ~{cyc:5.0} cycles{}",
+            if isr { " (with entry/return)" } else { "" }
+        );
+        b_insn += insn * per as f64;
+        b_cyc += cyc * per as f64;
+        if isr {
+            i_insn += insn * per as f64;
+            i_cyc += cyc * per as f64;
+        }
+    }
+    println!(
+        "RESULT per batch: {b_insn:.0} instructions ({i_insn:.0} in {} interrupts), ~{b_cyc:.0} cycles ({i_cyc:.0} in the interrupts)",
+        3 * WINDOWS
+    );
+    for hz in RATES_HZ {
+        println!(
+            "RESULT CPU share of the chain driver at {} kHz: {:.2} %",
+            hz / 1000,
+            share(b_cyc, hz)
+        );
+    }
+    Ok(())
+}
+
+/// `cargo xtask ioext-cpu`: the I/O extension's CPU work per 256-bit
+/// transfer (8 axes, every input and lamp mapped; `ioext-armcount`), then
+/// the board driver's start of a transfer (drivers::ioext_spi,
+/// IoExtPort::run) on its own code, built for QEMU
+/// (firmware/tests/ioext_cost.rs): QEMU has no DMA and no TIM1, so only the
+/// start runs as on a board (its end never comes and is not counted). Per
+/// region, the empty-marker calibration subtracted.
+pub fn ioext_cpu(_args: &[String]) -> Result {
+    const N: f64 = 200.0;
+    setup::ensure_target()?;
+    let qemu = setup::qemu()?;
+    let plugin = plugin()?;
+    let elf = bench_image("ioext-armcount", &[])?;
+    let d = objdump(&elf, false)?;
+    let c = count(
+        &qemu,
+        &plugin,
+        &d,
+        &Run {
+            elf: &elf,
+            marks: &[
+                "mark_off",
+                "mark_tick",
+                "mark_spi",
+                "mark_complete",
+                "mark_timer",
+                "mark_cal",
+            ],
+            dump: "mark_dump",
+            serials: &["none"],
+            semihosting: "enable=on,target=native".into(),
+            out: util::target_dir().join("armcount-bench/ioext.out"),
+        },
+    )?;
+    let per = |k: usize, cal: usize| c.insns(k) as f64 / N - c.insns(cal) as f64 / N;
+    println!(
+        "IoExtension::tick (plan, 24 lamps):         {:6.0} instructions",
+        per(1, 5)
+    );
+    println!(
+        "SPI engine: pack 32 bytes + unpack:         {:6.0} instructions",
+        per(2, 5)
+    );
+    println!(
+        "IoExtension::complete (32 inputs):          {:6.0} instructions",
+        per(3, 5)
+    );
+    println!(
+        "timer engine: BSRR table + port samples:    {:6.0} instructions",
+        per(4, 5)
+    );
+
+    let elf = firmware_test_image("ioext_cost")?;
+    let d = objdump(&elf, false)?;
+    let flash = util::TempDir::new("stepbridge-ioext-cost")?;
+    let c = count(
+        &qemu,
+        &plugin,
+        &d,
+        &Run {
+            elf: &elf,
+            marks: &["mark_off", "mark_spi", "mark_timer", "mark_cal"],
+            dump: "mark_dump",
+            serials: &["none", "null"],
+            semihosting: format!(
+                "enable=on,target=native,arg=ioext_cost,arg=flash={}",
+                flash.path().join("flash.bin").display()
+            ),
+            out: util::target_dir().join("armcount-bench/ioext-cost.out"),
+        },
+    )?;
+    let per = |k: usize, cal: usize| c.insns(k) as f64 / N - c.insns(cal) as f64 / N;
+    println!(
+        "driver start, SPI engine, 256 bits (N = 0): {:6.0} instructions",
+        per(1, 3)
+    );
+    println!(
+        "driver start, bit engine, 256 bits (N = 255): {:4.0} instructions",
+        per(2, 3)
+    );
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plugin_report() {
+        let r = "armcount-report 1\ncounters 3\ncounter 1 insns 100 blocks 20 lines 30 warm 4 5 cold 6 7\ncounter 2 insns 0 blocks 0 lines 0 warm 0 0 cold 0 0\npc 8000462 2 1 10 3\n";
+        let c = Counts::parse(r).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(c.insns(1), 100);
+        assert_eq!(
+            c.totals[&1],
+            Totals {
+                insns: 100,
+                blocks: 20,
+                lines: 30,
+                warm_seq: 4,
+                warm_jump: 5,
+                cold_seq: 6,
+                cold_jump: 7
+            }
+        );
+        assert_eq!(
+            c.pcs,
+            vec![PcCount {
+                pc: 0x0800_0462,
+                counter: 1,
+                count: 10,
+                taken: 3
+            }]
+        );
+        assert!(Counts::parse("T 1 2 3\n").is_err());
+    }
+
+    #[test]
+    fn stats_of_a_small_counter() {
+        let dis = "
+08000400 <armcost_mark_on>:
+ 8000400:      \tbx\tlr
+08000402 <work>:
+; /w/x.rs:1
+ 8000402:      \tldr\tr0, [r1]
+ 8000404:      \tldr\tr2, [r1, #4]
+ 8000406:      \tbl\t0x8000500 <__aeabi_uldivmod>
+ 800040a:      \tbne\t0x8000402 <work>
+";
+        let d = Disasm::parse(dis);
+        let r = "armcount-report 1\ncounters 2\ncounter 1 insns 9 blocks 2 lines 4 warm 1 2 cold 3 4\npc 8000400 2 1 2 2\npc 8000402 2 1 2 0\npc 8000404 2 1 2 0\npc 8000406 4 1 2 2\npc 800040a 2 1 1 1\n";
+        let c = Counts::parse(r).unwrap_or_else(|e| panic!("{e}"));
+        let s = stats(&d, &c, 1, 1.0);
+        assert_eq!(s.raw, 9.0);
+        // The marker's bx is the bench's.
+        assert_eq!(s.net, 7.0);
+        // ldr 2 × 2, ldr after ldr 2 × 1, bl 2 × (1 + 2), bne 1 + 1 × 2.
+        assert_eq!(s.cycles[1], 4.0 + 2.0 + 6.0 + 3.0);
+        assert_eq!(s.calls, vec![("__aeabi_uldivmod".to_owned(), 2.0)]);
+        assert_eq!(s.by_func, vec![("work".to_owned(), 7.0)]);
+        assert_eq!(s.footprint, 1);
+        assert_eq!(s.flash_wait(), 2.5 + 10.0);
+    }
+
+    #[test]
+    fn cargo_json_executable() {
+        let j = r#"{"reason":"compiler-artifact","package_id":"x","target":{"kind":["test"],"crate_types":["bin"],"name":"chain_cost","src_path":"/w/firmware/tests/chain_cost.rs"},"profile":{},"features":[],"filenames":["/w/t/chain_cost-ab"],"executable":"/w/t/chain_cost-ab","fresh":true}
+{"reason":"build-finished","success":true}"#;
+        assert_eq!(
+            executable_of(j, "chain_cost"),
+            Some(PathBuf::from("/w/t/chain_cost-ab"))
+        );
+        assert_eq!(executable_of(j, "ioext_cost"), None);
+    }
+
+    #[test]
+    fn names_and_paths() {
+        assert_eq!(strip_hash("a::b::h0123456789abcdef"), "a::b");
+        assert_eq!(strip_hash("a::hello"), "a::hello");
+        assert_eq!(
+            short_path("/w/firmware/logic/src/a.rs", "/w"),
+            "firmware/logic/src/a.rs"
+        );
+        assert_eq!(
+            short_path("/rustc/abc/library/core/src/cmp.rs", "/w"),
+            "library/core/src/cmp.rs"
+        );
+        assert_eq!(
+            short_path(
+                "/h/.cargo/registry/src/index.crates.io-1/heapless-0.9.3/src/vec.rs",
+                "/w"
+            ),
+            "heapless-0.9.3/src/vec.rs"
+        );
+        assert!((share(16800.0, 10_000) - 100.0).abs() < 1e-9);
+    }
+}
