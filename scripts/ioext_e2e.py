@@ -9,7 +9,7 @@ input N (receive bit N, wire order). Run by scripts/qemu-e2e; by hand:
     QEMU_CONSOLE=tcp:127.0.0.1:5021,server=on,wait=off QEMU_FRESH=1 cargo qemu
     python3 scripts/ioext_e2e.py --port 5020 --console-port 5021
 
-The scenario (docs/ioext.md, README "I/O extension"; unit 1 = axis 0):
+The scenario (docs/ioext.md, "In short"; unit 1 = axis 0):
   1. Transfers (0x0204, u32 high word first) 0 and no receive data while
      the extension is off (factory).
   2. Configuration 0x0202 = 0x100A, 0x020F (SPI mode, 16 bits, mode 0,

@@ -22,7 +22,7 @@
 //!   batch (`drivers::chain_spi`): per window TIM7 times the CS-high gap
 //!   (≥ 800 ns) and the CS set-up (≥ 350 ns), DMA2 moves the N bytes, and
 //!   stream 0's transfer-complete raises CS and arms the next window. Tens
-//!   of instructions each (README, "The control tick: rate and cost").
+//!   of instructions each (`docs/performance.md`).
 //!   Highest priority: the windows are the motion's timing and must not
 //!   wait behind the Modbus UART or a bridge lock; they can delay the UART
 //!   task by one of these short handlers (< 1 µs), nothing at the Modbus
@@ -88,7 +88,7 @@
 //!
 //! A panic or HardFault drives STBY low first (`firmware::failsafe`); the
 //! watchdog resets the MCU if `control_tick` stops, within 47.1 ms while
-//! an axis may move (README, "Wiring"). Under QEMU (feature
+//! an axis may move (`docs/pins.md`, *Wiring*). Under QEMU (feature
 //! `qemu`) the same tasks run on `platform/qemu.rs`'s stand-ins, where the
 //! I2C tasks never fire and USB is never started (`usb_hid` returns at
 //! once). On any target but `thumbv7em-none-eabihf` this file is an empty

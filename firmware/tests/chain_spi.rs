@@ -11,7 +11,7 @@
 //! * the completion interrupt fires once per window, the timer twice;
 //! * no CPU spin: thread mode counts in a loop while the batch runs, and
 //!   the interrupts take a small share of the batch's time (the cycles they
-//!   take are logged: the on-hardware numbers for the README's CPU table);
+//!   take are logged: the on-hardware numbers for docs/performance.md's CPU table);
 //! * the bytes: with a **jumper PA7 (MOSI) → PA6 (MISO)** every window
 //!   comes back as sent; with nothing on the bus (MISO's pull-up) every
 //!   byte reads 0xFF; with a chain attached the byte check is skipped

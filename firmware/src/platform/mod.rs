@@ -26,7 +26,7 @@
 //! | `unique_id` | the 96 bits at 0x1FFF_7A10 | a fixed id (logged) | reading 0x1FFF_7A10 HardFaults |
 //! | `rom_bootloader` | jump to ST's ROM DFU bootloader (`drivers::mcu`) | logs, returns: normal start | no system memory |
 //! | `Stopwatch`, `enable_stopwatch` (control-tick timing) | DWT cycle counter | QEMU's virtual clock (TIM5's counter) | QEMU's cycle counter reads 0 |
-//! | `measure_us`, `SYSTICK_LAG_MAX_PERCENT` (on-target tests) | DWT cycle counter; SysTick exact | host clock (semihosting); SysTick up to 50 % slow | QEMU's cycle counter reads 0; its SysTick re-arms late |
+//! | `measure_us`, `SYSTICK_LAG_MAX_PERCENT` (on-target tests) | DWT cycle counter; SysTick exact | host clock (semihosting); SysTick up to 200 % slow (a loaded host) | QEMU's cycle counter reads 0; its SysTick re-arms late |
 //! | defmt transport | RTT (probe) | semihosting stdout | no probe |
 //!
 //! The reset handoff word (`drivers::mcu`, `.uninit` RAM) is the same on

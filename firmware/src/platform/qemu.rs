@@ -734,10 +734,12 @@ impl I2cSlaveDriver {
 /// 168 MHz of its own time, but re-arms the SysTick at each wrap (every
 /// 100 µs here) from the moment it serves it, so every period is late by
 /// the host's latency: measured 10-30 % behind the host clock on a 2-core
-/// machine, varying with its load (its TIM2 model, re-armed every 1 ms,
-/// lags ~1 %). The monotonic, Modbus timing included, runs that much slow
-/// under QEMU; a wrong SysTick rate would be off by 10x.
-pub const SYSTICK_LAG_MAX_PERCENT: u64 = 50;
+/// machine, and 54 % with two other builds running on it (its TIM2 model,
+/// re-armed every 1 ms, lags ~1 %). The monotonic, Modbus timing included,
+/// runs that much slow under QEMU. The bound is loose on purpose: what the
+/// test must catch is a wrong SysTick rate, which is off by 10x (a
+/// prescaler) or more, never by 3x.
+pub const SYSTICK_LAG_MAX_PERCENT: u64 = 200;
 
 /// Run `f` and return how long it took in µs on a clock that is not
 /// SysTick, for the on-target tests that check the monotonic's rate: the
