@@ -1,20 +1,16 @@
 //! stepbridge logic: every behaviour of the bridge, with no HAL, no RTIC and
 //! no allocation, so the same code runs on the STM32F405 and in `cargo test`.
 //!
-//! Layers, each depending only on the layers listed before it:
-//! * [`powerstep`] — powerSTEP01 register map, commands, STATUS, units, and
-//!   the daisy-chain owner that schedules every SPI byte.
-//! * [`motion`] — the trapezoidal profile generator and the axis output
-//!   stage (setpoints → chain commands, read-back, landing, chip setup).
-//! * [`postep60`] — one emulated PoStep60 per axis: settings, modes, faults,
-//!   currents, the persistence image.
-//! * [`transport`] — bytes ↔ PoStep60 commands for each bus (I2C, Modbus
-//!   RTU); knows no hardware and not the bridge.
-//! * [`persist`] — the power-cut-safe settings store over any NOR flash.
-//! * [`rate`] — the control-tick rate (build setting `STEPBRIDGE_TICK_HZ`).
-//! * [`bridge`] — the object the firmware owns: `tick(now)` for the control
-//!   loop, requests and queries for the buses, and the adapters that connect
-//!   each transport to the device models.
+//! Layers, bottom up; each module imports only modules of the rows above
+//! it (`host-tests/tests/layers.rs` reads the sources and fails otherwise):
+//!
+//! | layer | modules | what |
+//! |---|---|---|
+//! | 0 | [`powerstep`], [`persist`] (crates of their own), [`rate`] | the powerSTEP01 driver and chain scheduler; the power-cut-safe settings store; the control-tick rate (build setting `STEPBRIDGE_TICK_HZ`) |
+//! | 1 | [`motion`], [`ioext`] | the profile generator and the axis output stage (setpoints → chain commands, read-back, landing, chip set-up, homing); the Copley-style SPI I/O extension |
+//! | 2 | [`postep60`], [`ext_space`] | one emulated PoStep60 per axis (settings, modes, faults, currents, the persistence image); the extension space's map, codecs and errors |
+//! | 3 | [`transport`] | bytes ↔ requests for each bus (I2C, Modbus RTU, USB HID); knows no hardware and not the bridge |
+//! | 4 | [`bridge`] | the object the firmware owns: `tick(now)` for the control loop, requests and queries for the buses, the extension space's behaviour |
 //!
 //! The simulated hardware (powerSTEP01 chips and chain, the I/O extension's
 //! shift registers) is its own crate, `stepbridge-sim`, which does not
