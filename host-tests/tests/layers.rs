@@ -21,7 +21,14 @@ const ALLOWED: &[(&str, &[&str])] = &[
     ("ext_space", &["powerstep", "ioext"]),
     (
         "transport",
-        &["powerstep", "persist", "motion", "ioext", "postep60", "ext_space"],
+        &[
+            "powerstep",
+            "persist",
+            "motion",
+            "ioext",
+            "postep60",
+            "ext_space",
+        ],
     ),
     (
         "bridge",
