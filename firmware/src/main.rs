@@ -112,7 +112,7 @@ mod app {
     use bridge_logic::ioext::{Action, WireBits};
     use bridge_logic::persist::{Store, StoreError, MAX_IMAGE};
     use bridge_logic::postep60::settings::{Settings, IMAGE_LEN};
-    use bridge_logic::postep60::Board;
+    use bridge_logic::postep60::PowerStage;
     use bridge_logic::powerstep::chain::{Frames, MAX_DEVICES, MAX_WINDOWS};
     use bridge_logic::transport::i2c::I2cSlave;
     use bridge_logic::transport::modbus::{RtuServer, Timing};
@@ -381,7 +381,7 @@ mod app {
         // runs at a slower one (a skipped tick would run the motors slow).
         let (mut bridge, rate) = Bridge::new_fitted_with(
             bus,
-            Board::REFERENCE,
+            PowerStage::REFERENCE,
             settings,
             source,
             TICK_HZ,

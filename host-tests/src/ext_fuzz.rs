@@ -12,7 +12,7 @@
 //!   extension space has no other motion command.
 
 use crate::clock::SimClock;
-use bridge_logic::postep60::{Board, Settings};
+use bridge_logic::postep60::{PowerStage, Settings};
 
 use crate::sim_bridge::{chip, new_bridge, TICK_US};
 
@@ -36,7 +36,7 @@ pub fn check_ext_stream(data: &[u8]) -> usize {
     let (mut bridge, mut clock) = crate::sim_bridge::template("ext_stream", || {
         let mut s = Settings::FACTORY;
         s.axes[0].end_switch = true;
-        let mut bridge = new_bridge(2, s, Board::REFERENCE);
+        let mut bridge = new_bridge(2, s, PowerStage::REFERENCE);
         let mut clock = SimClock::new(TICK_US);
         clock.run(&mut bridge, 30);
         (bridge, clock)

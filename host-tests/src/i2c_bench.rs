@@ -4,7 +4,7 @@
 
 use crate::clock::SimClock;
 use bridge_logic::bridge::Bridge;
-use bridge_logic::postep60::{Board, Settings};
+use bridge_logic::postep60::{PowerStage, Settings};
 use bridge_logic::transport::i2c::{I2cSlave, Which};
 use stepbridge_sim::SimChain;
 
@@ -21,10 +21,10 @@ pub struct I2cBench {
 impl I2cBench {
     /// A bridge on `n` simulated chips with `settings`, run until configured.
     pub fn new(n: usize, settings: Settings) -> I2cBench {
-        Self::with_board(n, settings, Board::REFERENCE)
+        Self::with_board(n, settings, PowerStage::REFERENCE)
     }
 
-    pub fn with_board(n: usize, settings: Settings, board: Board) -> I2cBench {
+    pub fn with_board(n: usize, settings: Settings, board: PowerStage) -> I2cBench {
         let mut b = I2cBench {
             bridge: crate::sim_bridge::new_bridge(n, settings, board),
             slave: I2cSlave::new(),

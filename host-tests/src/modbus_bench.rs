@@ -10,7 +10,7 @@
 use crate::clock::SimClock;
 use bridge_logic::bridge::Bridge;
 use bridge_logic::postep60::settings::Serial;
-use bridge_logic::postep60::{Board, Settings};
+use bridge_logic::postep60::{PowerStage, Settings};
 use bridge_logic::transport::modbus::{RtuServer, Timing};
 use stepbridge_sim::SimChain;
 
@@ -71,10 +71,10 @@ pub struct ModbusBench {
 impl ModbusBench {
     /// A bridge on `n` simulated chips with `settings`, run until configured.
     pub fn new(n: usize, settings: Settings) -> ModbusBench {
-        Self::with_board(n, settings, Board::REFERENCE)
+        Self::with_board(n, settings, PowerStage::REFERENCE)
     }
 
-    pub fn with_board(n: usize, settings: Settings, board: Board) -> ModbusBench {
+    pub fn with_board(n: usize, settings: Settings, board: PowerStage) -> ModbusBench {
         let bridge = crate::sim_bridge::new_bridge(n, settings, board);
         let timing = Timing::for_serial(bridge.serial());
         let mut line = ModbusBench {

@@ -2,7 +2,7 @@
 
 use bridge_logic::bridge::{Bridge, SettingsSource};
 use bridge_logic::postep60::analog::AnalogSample;
-use bridge_logic::postep60::{Board, Settings};
+use bridge_logic::postep60::{PowerStage, Settings};
 use stepbridge_sim::{Powerstep01, SimChain};
 
 /// The harnesses' control period.
@@ -10,13 +10,18 @@ pub const TICK_US: u32 = 1000;
 
 /// A bridge on `n` simulated chips with `settings`, measuring 24 V and 25 °C
 /// (not yet ticked: the caller runs it until the chips are configured).
-pub fn new_bridge(n: usize, settings: Settings, board: Board) -> Bridge<SimChain> {
+pub fn new_bridge(n: usize, settings: Settings, board: PowerStage) -> Bridge<SimChain> {
     new_bridge_at(n, settings, board, TICK_US)
 }
 
 /// [`new_bridge`] ticked every `tick_us` µs (the firmware's build setting
 /// `STEPBRIDGE_TICK_HZ`; 1000, 500 and 200 µs are tested).
-pub fn new_bridge_at(n: usize, settings: Settings, board: Board, tick_us: u32) -> Bridge<SimChain> {
+pub fn new_bridge_at(
+    n: usize,
+    settings: Settings,
+    board: PowerStage,
+    tick_us: u32,
+) -> Bridge<SimChain> {
     let mut bridge = Bridge::new(
         SimChain::new(n),
         board,

@@ -13,7 +13,7 @@ use bridge_logic::bridge::{Bridge, RunMode};
 use bridge_logic::persist::sim::SimFlash;
 use bridge_logic::persist::Store;
 use bridge_logic::postep60::settings::IMAGE_LEN;
-use bridge_logic::postep60::{Board, Settings};
+use bridge_logic::postep60::{PowerStage, Settings};
 use bridge_logic::transport::usb::{self, PoStepHid, REPORT_LEN};
 use stepbridge_sim::SimChain;
 use usb_device::class_prelude::*;
@@ -144,7 +144,8 @@ impl UsbDeviceCtx for UsbCtx {
         alloc: &'a UsbBusAllocator<EmulatedUsbBus>,
     ) -> AnyResult<UsbBench<'a>> {
         let hid = PoStepHid::new(alloc).map_err(|_| AnyUsbError::UserDefined1)?;
-        let mut bridge = crate::sim_bridge::new_bridge(self.chips, self.settings, Board::REFERENCE);
+        let mut bridge =
+            crate::sim_bridge::new_bridge(self.chips, self.settings, PowerStage::REFERENCE);
         bridge.set_unique_id(UID);
         if self.run_mode == RunMode::Boot {
             bridge.enter_boot_mode();
@@ -213,7 +214,7 @@ pub const MOTION: [u8; 10] = [0x02, 0x80, 0x83, 0x82, 0x90, 0xA1, 0xB1, 0xB2, 0x
 /// length byte (mod 80) and that many bytes; for a tick a count of ms (mod 30).
 pub fn check_usb_stream(data: &[u8]) -> usize {
     let (mut bridge, mut clock) = crate::sim_bridge::template("usb_stream", || {
-        let mut bridge = crate::sim_bridge::new_bridge(2, Settings::FACTORY, Board::REFERENCE);
+        let mut bridge = crate::sim_bridge::new_bridge(2, Settings::FACTORY, PowerStage::REFERENCE);
         let mut clock = SimClock::new(TICK_US);
         clock.run(&mut bridge, 30);
         (bridge, clock)

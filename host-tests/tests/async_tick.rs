@@ -3,7 +3,7 @@
 //! blocking `Bridge::tick` does, byte for byte on the wire.
 
 use bridge_logic::bridge::Bridge;
-use bridge_logic::postep60::{Board, Request, Settings};
+use bridge_logic::postep60::{PowerStage, Request, Settings};
 use bridge_logic::powerstep::chain::{ChainBus, Frames, MAX_DEVICES, MAX_WINDOWS};
 use host_tests::sim_bridge::{chip, new_bridge, TICK_US};
 use stepbridge_sim::SimChain;
@@ -44,8 +44,8 @@ fn run_both(ms: u64, a: &mut Bridge<SimChain>, b: &mut Bridge<SimChain>, now: &m
 
 #[test]
 fn a_tick_begun_and_ended_around_the_driver_equals_the_blocking_tick() {
-    let mut a = new_bridge(4, Settings::FACTORY, Board::REFERENCE);
-    let mut b = new_bridge(4, Settings::FACTORY, Board::REFERENCE);
+    let mut a = new_bridge(4, Settings::FACTORY, PowerStage::REFERENCE);
+    let mut b = new_bridge(4, Settings::FACTORY, PowerStage::REFERENCE);
     let mut now = 0;
     run_both(30, &mut a, &mut b, &mut now);
     for k in 0..4 {
@@ -93,7 +93,7 @@ fn a_transfer_the_driver_reports_failed_sets_every_chip_up_again() {
             sim: SimChain::new(2),
             fail: false,
         },
-        Board::REFERENCE,
+        PowerStage::REFERENCE,
         Settings::FACTORY,
         bridge_logic::bridge::SettingsSource::Stored,
         TICK_US,

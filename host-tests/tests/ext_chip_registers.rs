@@ -3,7 +3,7 @@
 //! on simulated chips. Frames are built with the harness's own CRC.
 
 use bridge_logic::postep60::settings::{IMAGE_LEN, TUNABLE};
-use bridge_logic::postep60::{Board, Settings};
+use bridge_logic::postep60::{PowerStage, Settings};
 use bridge_logic::powerstep::registers::{Register, REGISTERS};
 use bridge_logic::powerstep::Command;
 use host_tests::i2c_bench::I2cBench;
@@ -165,7 +165,7 @@ fn config_keeps_the_board_s_clock_and_sw_mode() {
     b.run(10);
     assert_eq!(b.write(1, 0x011A, 0x1F00), Ok(()));
     b.run(5);
-    let board = Board::REFERENCE.config_register();
+    let board = PowerStage::REFERENCE.config_register();
     assert_eq!(
         b.chip(0).register(Register::Config),
         u32::from(0x1F00 | (board & 0x1F))

@@ -5,7 +5,7 @@
 
 use bridge_logic::bridge::{Bridge, SettingsSource};
 use bridge_logic::postep60::analog::AnalogSample;
-use bridge_logic::postep60::{Board, Settings};
+use bridge_logic::postep60::{PowerStage, Settings};
 use bridge_logic::powerstep::registers::Register;
 use bridge_logic::powerstep::ChainBus;
 use bridge_logic::transport::usb::codec::{cmd, status, IN_STATUS_BYTE};
@@ -79,7 +79,7 @@ fn every_register_the_bridge_configures_is_what_the_chip_holds() {
         // The block's values are the bridge's, not a copy of the chip's.
         assert_eq!(
             u32::from(values[usize::from(Register::Config.address())]),
-            u32::from(Board::REFERENCE.config_register())
+            u32::from(PowerStage::REFERENCE.config_register())
         );
     }
 }
@@ -166,7 +166,7 @@ fn the_chain_state_says_failing_then_dead_and_a_good_tick_ends_it() {
             sim: SimChain::new(2),
             broken: false,
         },
-        Board::REFERENCE,
+        PowerStage::REFERENCE,
         Settings::FACTORY,
         SettingsSource::Stored,
         1000,
@@ -198,7 +198,7 @@ fn undetected() -> Bridge<SimChain> {
     chain.device_mut(1).unwrap().inject(Fault::Dead(0xFF));
     let mut bridge = Bridge::new(
         chain,
-        Board::REFERENCE,
+        PowerStage::REFERENCE,
         Settings::FACTORY,
         SettingsSource::FactoryEmpty,
         1000,

@@ -36,7 +36,7 @@ impl Home {
         s.axes[0].acc = 32_000;
         s.axes[0].dec = 32_000;
         let mut h = Home {
-            bridge: new_bridge(1, s, bridge_logic::postep60::Board::REFERENCE),
+            bridge: new_bridge(1, s, bridge_logic::postep60::PowerStage::REFERENCE),
             clock: SimClock::new(TICK_US),
             edge,
             nc,

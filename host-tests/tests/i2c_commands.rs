@@ -6,7 +6,7 @@ use bridge_logic::bridge::ResetTarget;
 use bridge_logic::motion::axis::logical_to_physical;
 use bridge_logic::postep60::analog::AnalogSample;
 use bridge_logic::postep60::settings::{DriverMode, IMAGE_LEN};
-use bridge_logic::postep60::{Board, Inputs, Settings};
+use bridge_logic::postep60::{Inputs, PowerStage, Settings};
 use bridge_logic::powerstep::registers::Register;
 use bridge_logic::powerstep::Direction;
 use bridge_logic::powerstep::StepSel;
@@ -301,9 +301,9 @@ fn driver_mode_0x05_refuses_dc_motor_and_external_step_dir_on_this_board() {
 
 #[test]
 fn driver_mode_1_is_accepted_where_the_board_routes_step() {
-    let board = Board {
+    let board = PowerStage {
         step_dir_routed: true,
-        ..Board::REFERENCE
+        ..PowerStage::REFERENCE
     };
     let mut b = I2cBench::with_board(1, Settings::FACTORY, board);
     b.write(A0, &[0x05, 1]);

@@ -8,7 +8,7 @@
 //! same motion.
 
 use bridge_logic::bridge::Bridge;
-use bridge_logic::postep60::{Board, Settings};
+use bridge_logic::postep60::{PowerStage, Settings};
 use host_tests::clock::SimClock;
 use host_tests::i2c_bench::{le_i32, I2cBench};
 use host_tests::rm0090::i2c_rig::I2cRig;
@@ -26,7 +26,7 @@ struct WireBench {
 
 impl WireBench {
     fn new(latency: usize) -> WireBench {
-        let bridge = new_bridge(2, Settings::FACTORY, Board::REFERENCE);
+        let bridge = new_bridge(2, Settings::FACTORY, PowerStage::REFERENCE);
         let (p, s) = bridge.i2c_addresses();
         let mut rig = I2cRig::new(bridge, p, s);
         rig.latency = latency;

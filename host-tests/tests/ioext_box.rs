@@ -53,7 +53,7 @@ impl BoxRig {
     /// One axis with `settings`, the shift registers attached, every input
     /// open (high), the extension on and running.
     fn new(settings: Settings) -> BoxRig {
-        let mut bridge = new_bridge(1, settings, bridge_logic::postep60::Board::REFERENCE);
+        let mut bridge = new_bridge(1, settings, bridge_logic::postep60::PowerStage::REFERENCE);
         let mut io = ShiftChain::new(2, 1);
         for i in 0..16 {
             io.set_rx_bit(i, true);

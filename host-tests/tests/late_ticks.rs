@@ -18,13 +18,13 @@
 use bridge_logic::bridge::{BatchState, Bridge, PipelinedTick};
 use bridge_logic::motion::axis::logical_to_physical;
 use bridge_logic::motion::Mode;
-use bridge_logic::postep60::{Board, Request, Settings};
+use bridge_logic::postep60::{PowerStage, Request, Settings};
 use bridge_logic::powerstep::chain::{clock_windows, Frames, MAX_DEVICES, MAX_WINDOWS};
 use host_tests::rng::Rng;
 use host_tests::sim_bridge::{all_settled, chip, new_bridge, TICK_US};
 use stepbridge_sim::SimChain;
 
-const BOARD: Board = Board::REFERENCE;
+const BOARD: PowerStage = PowerStage::REFERENCE;
 const EMPTY: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS];
 
 /// The filed scenario's limits (Modbus 0x51–0x53) and target (0x50).

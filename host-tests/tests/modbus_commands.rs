@@ -7,7 +7,7 @@
 use bridge_logic::bridge::ResetTarget;
 use bridge_logic::motion::axis::logical_to_physical;
 use bridge_logic::postep60::settings::IMAGE_LEN;
-use bridge_logic::postep60::{Board, Settings};
+use bridge_logic::postep60::{PowerStage, Settings};
 use bridge_logic::powerstep::registers::Register;
 use bridge_logic::powerstep::Direction;
 use bridge_logic::powerstep::StepSel;
@@ -148,9 +148,9 @@ fn set_driver_mode_0x05_dc_motor_and_external_step_dir_are_refused_with_04() {
 
 #[test]
 fn set_driver_mode_0x05_external_is_accepted_where_the_board_routes_step() {
-    let board = Board {
+    let board = PowerStage {
         step_dir_routed: true,
-        ..Board::REFERENCE
+        ..PowerStage::REFERENCE
     };
     let mut b = ModbusBench::with_board(1, Settings::FACTORY, board);
     assert_eq!(b.write(1, 0x05, 1), Ok(()));

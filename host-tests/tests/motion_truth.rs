@@ -14,7 +14,7 @@
 use bridge_logic::bridge::Bridge;
 use bridge_logic::motion::axis::{logical_to_physical, physical_to_logical};
 use bridge_logic::motion::AxisState;
-use bridge_logic::postep60::{Board, Query, Request, Settings, Value};
+use bridge_logic::postep60::{PowerStage, Query, Request, Settings, Value};
 use bridge_logic::powerstep::registers::{sign_extend_22, wrap_22, Register};
 use bridge_logic::powerstep::Command;
 use host_tests::clock::SimClock;
@@ -22,7 +22,7 @@ use host_tests::rng::Rng;
 use host_tests::sim_bridge::{chip, chip_mut, new_bridge_at, TICK_US};
 use stepbridge_sim::{Fault, SimChain};
 
-const BOARD: Board = Board::REFERENCE;
+const BOARD: PowerStage = PowerStage::REFERENCE;
 /// Microsteps per full step on the reference board's chips (1/128).
 const MICRO: f64 = 128.0;
 

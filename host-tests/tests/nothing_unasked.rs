@@ -34,7 +34,7 @@
 use bridge_logic::bridge::{Bridge, Bus};
 use bridge_logic::motion::axis::{logical_to_physical, physical_to_logical};
 use bridge_logic::postep60::settings::{DriverMode, Watchdog, WatchdogAction};
-use bridge_logic::postep60::{Board, Inputs, Query, Request, Settings, Value};
+use bridge_logic::postep60::{Inputs, PowerStage, Query, Request, Settings, Value};
 use bridge_logic::powerstep::registers::{sign_extend_22, wrap_22, Register};
 use bridge_logic::powerstep::Command;
 use host_tests::clock::SimClock;
@@ -42,7 +42,7 @@ use host_tests::rng::Rng;
 use host_tests::sim_bridge::{chip, chip_mut, new_bridge_at};
 use stepbridge_sim::{Fault, HomeCam, SimChain};
 
-const BOARD: Board = Board::REFERENCE;
+const BOARD: PowerStage = PowerStage::REFERENCE;
 /// Homing registers (extension 0x04nn).
 const HOMING_CMD: u16 = 0x0400;
 const HOMING_RESULT: u16 = 0x0401;

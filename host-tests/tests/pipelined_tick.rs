@@ -15,14 +15,14 @@
 
 use bridge_logic::bridge::{BatchState, Bridge, PipelinedTick, SettingsSource};
 use bridge_logic::motion::axis::{logical_to_physical, physical_to_logical};
-use bridge_logic::postep60::{Board, Query, Request, Settings, Value};
+use bridge_logic::postep60::{PowerStage, Query, Request, Settings, Value};
 use bridge_logic::powerstep::chain::{ChainBus, Frames, Plan, MAX_DEVICES, MAX_WINDOWS};
 use bridge_logic::powerstep::registers::{sign_extend_22, wrap_22};
 use host_tests::rng::Rng;
 use host_tests::sim_bridge::{all_settled, chip, new_bridge, TICK_US};
 use stepbridge_sim::SimChain;
 
-const BOARD: Board = Board::REFERENCE;
+const BOARD: PowerStage = PowerStage::REFERENCE;
 const EMPTY: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS];
 
 /// Clock every window of `plan` through `bus` into `rx` (what the QEMU

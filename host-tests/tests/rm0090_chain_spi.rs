@@ -9,7 +9,7 @@
 
 use bridge_logic::bridge::{BatchState, Bridge, SettingsSource};
 use bridge_logic::postep60::analog::AnalogSample;
-use bridge_logic::postep60::{Board, Query, Request, Settings, Value};
+use bridge_logic::postep60::{PowerStage, Query, Request, Settings, Value};
 use bridge_logic::powerstep::chain::{Batch, ChainBus, Frames, Plan, MAX_DEVICES, MAX_WINDOWS};
 use bridge_logic::powerstep::commands::Command;
 use drivers_core::chain_spi::bits::*;
@@ -159,7 +159,7 @@ fn chain_detection_through_driver_and_model_finds_every_chip() {
         let hw = ChainHandle::new(SimChain::new(n));
         let bridge = Bridge::new(
             ChainSpi::new(hw.clone(), clocks()),
-            Board::REFERENCE,
+            PowerStage::REFERENCE,
             Settings::FACTORY,
             SettingsSource::Stored,
             TICK_US,
@@ -309,7 +309,7 @@ impl Wire {
         let chain = SharedChain::new(ChainSpi::new(hw.clone(), clocks()));
         let mut bridge = Bridge::new(
             chain.clone(),
-            Board::REFERENCE,
+            PowerStage::REFERENCE,
             Settings::FACTORY,
             SettingsSource::Stored,
             TICK_US,
@@ -349,7 +349,7 @@ impl Wire {
 
 #[test]
 fn control_ticks_through_driver_and_model_send_the_chips_what_the_blocking_tick_sends() {
-    let mut a = new_bridge(4, Settings::FACTORY, Board::REFERENCE);
+    let mut a = new_bridge(4, Settings::FACTORY, PowerStage::REFERENCE);
     let mut w = Wire::new(4);
     for now in 1..=300 {
         a.tick(now);
@@ -372,7 +372,7 @@ fn control_ticks_through_driver_and_model_send_the_chips_what_the_blocking_tick_
 
 #[test]
 fn a_move_through_driver_and_model_lands_where_the_blocking_tick_lands() {
-    let mut a = new_bridge(2, Settings::FACTORY, Board::REFERENCE);
+    let mut a = new_bridge(2, Settings::FACTORY, PowerStage::REFERENCE);
     let mut w = Wire::new(2);
     for now in 1..=6_000u64 {
         if now == 50 {

@@ -3,14 +3,14 @@
 //! axes run at the rate returned.
 
 use bridge_logic::bridge::{Bridge, SettingsSource};
-use bridge_logic::postep60::{Board, Settings};
+use bridge_logic::postep60::{PowerStage, Settings};
 use bridge_logic::rate;
 use stepbridge_sim::SimChain;
 
 fn windows_of_one_detection(n: usize) -> u64 {
     let b = Bridge::new(
         SimChain::new(n),
-        Board::REFERENCE,
+        PowerStage::REFERENCE,
         Settings::FACTORY,
         SettingsSource::Stored,
         1000,
@@ -22,7 +22,7 @@ fn windows_of_one_detection(n: usize) -> u64 {
 fn eight_chips_in_a_5_khz_build_run_at_the_fitted_rate_after_one_detection() {
     let (b, r) = Bridge::new_fitted(
         SimChain::new(8),
-        Board::REFERENCE,
+        PowerStage::REFERENCE,
         Settings::FACTORY,
         SettingsSource::Stored,
         5000,
@@ -37,7 +37,7 @@ fn eight_chips_in_a_5_khz_build_run_at_the_fitted_rate_after_one_detection() {
 fn a_chain_that_fits_keeps_the_build_rate() {
     let (b, r) = Bridge::new_fitted(
         SimChain::new(4),
-        Board::REFERENCE,
+        PowerStage::REFERENCE,
         Settings::FACTORY,
         SettingsSource::Stored,
         5000,
@@ -51,7 +51,7 @@ fn a_platform_with_a_costlier_tick_fits_its_own_cost() {
     // The QEMU image's simulated chips: ~200 µs for 4, no 5 kHz.
     let (b, r) = Bridge::new_fitted_with(
         SimChain::new(4),
-        Board::REFERENCE,
+        PowerStage::REFERENCE,
         Settings::FACTORY,
         SettingsSource::Stored,
         5000,

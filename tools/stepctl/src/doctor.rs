@@ -9,7 +9,7 @@
 use std::time::{Duration, Instant};
 
 use bridge_logic::ext_space::{block, configured, diag};
-use bridge_logic::postep60::Board;
+use bridge_logic::postep60::PowerStage;
 use bridge_logic::powerstep::registers::Register;
 use serde::Serialize;
 
@@ -97,7 +97,7 @@ impl Default for Expect {
     fn default() -> Expect {
         Expect {
             axes: None,
-            supply_v: f64::from(Board::REFERENCE.supply_millivolts) / 1000.0,
+            supply_v: f64::from(PowerStage::REFERENCE.supply_millivolts) / 1000.0,
             tick_tolerance: TICK_TOLERANCE_PERCENT / 100.0,
         }
     }

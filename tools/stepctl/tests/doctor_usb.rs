@@ -9,7 +9,7 @@ use std::time::Duration;
 
 use bridge_logic::bridge::{Bridge, SettingsSource};
 use bridge_logic::postep60::analog::AnalogSample;
-use bridge_logic::postep60::{Board, Settings};
+use bridge_logic::postep60::{PowerStage, Settings};
 use stepbridge_sim::{Fault, SimChain};
 use stepctl::doctor::{self, Expect, Options, Verdict};
 use stepctl::usb::{Hid, Report, UsbBus};
@@ -29,7 +29,7 @@ impl BridgeHid {
         }
         let mut bridge = Bridge::new(
             chain,
-            Board::REFERENCE,
+            PowerStage::REFERENCE,
             Settings::FACTORY,
             SettingsSource::FactoryEmpty,
             1000,

@@ -33,7 +33,7 @@ use bridge_logic::persist::sim::SimFlash;
 use bridge_logic::persist::{Store, StoreError, MAX_IMAGE};
 use bridge_logic::postep60::analog::AnalogSample;
 use bridge_logic::postep60::settings::IMAGE_LEN;
-use bridge_logic::postep60::Board;
+use bridge_logic::postep60::PowerStage;
 use bridge_logic::rate::TICK_HZ;
 use bridge_logic::transport::usb::{self as hid, PoStepHid, REPORT_LEN};
 use host_tests::clock::SimClock;
@@ -162,7 +162,7 @@ impl PoStepBox {
         let (settings, source) = boot_settings(loaded, |e| *e == StoreError::Empty);
         let (mut bridge, rate) = Bridge::new_fitted(
             SimChain::new(axes),
-            Board::REFERENCE,
+            PowerStage::REFERENCE,
             settings,
             source,
             TICK_HZ,

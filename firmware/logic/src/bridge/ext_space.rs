@@ -153,7 +153,7 @@ impl<B: ChainBus> Bridge<B> {
                 return Err(ExtError::IllegalValue)
             }
             // The board's clock source and SW_MODE = 1 stay.
-            Register::Config => (value & !0x1F) | (self.board.config_register() & 0x1F),
+            Register::Config => (value & !0x1F) | (self.stage.config_register() & 0x1F),
             _ => value,
         };
         let (Some(d), Some(a)) = (self.devices.get_mut(k), self.group.axis_mut(k)) else {

@@ -39,7 +39,7 @@ use crate::motion::{Axis, AxisConfig, AxisGroup};
 use crate::postep60::analog::{self, AnalogSample};
 use crate::postep60::settings::{Serial, Watchdog, WatchdogAction, IMAGE_LEN, WATCHED_BUSES};
 use crate::postep60::{
-    Board, CommandError, Device, Effect, Inputs, Query, Request, Settings, Value,
+    CommandError, Device, Effect, Inputs, PowerStage, Query, Request, Settings, Value,
 };
 use crate::powerstep::chain::{Chain, ChainBus, ChainError, Frames, Plan, MAX_DEVICES};
 use crate::transport::i2c::I2cCommand;
@@ -291,7 +291,7 @@ pub struct Bridge<B: ChainBus> {
     chain: Chain<B>,
     group: AxisGroup,
     devices: Vec<Device, MAX_DEVICES>,
-    board: Board,
+    stage: PowerStage,
     base_address: u8,
     serial: Serial,
     supply: u16,
@@ -361,13 +361,13 @@ impl<B: ChainBus> Bridge<B> {
     /// axes and [`Bridge::chain_error`] says why.
     pub fn new(
         bus: B,
-        board: Board,
+        stage: PowerStage,
         settings: Settings,
         source: SettingsSource,
         tick_us: u32,
     ) -> Bridge<B> {
         let (chain, n, chain_error) = Self::detect(bus);
-        Self::build(chain, n, chain_error, board, settings, source, tick_us)
+        Self::build(chain, n, chain_error, stage, settings, source, tick_us)
     }
 
     /// [`Bridge::new`] at the fastest tick rate up to `build_hz` that the
@@ -375,14 +375,14 @@ impl<B: ChainBus> Bridge<B> {
     /// and the axes are set up for the rate returned with the bridge.
     pub fn new_fitted(
         bus: B,
-        board: Board,
+        stage: PowerStage,
         settings: Settings,
         source: SettingsSource,
         build_hz: u32,
     ) -> (Bridge<B>, crate::rate::Rate) {
         Self::new_fitted_with(
             bus,
-            board,
+            stage,
             settings,
             source,
             build_hz,
@@ -395,7 +395,7 @@ impl<B: ChainBus> Bridge<B> {
     /// simulated chips cost more than the board's bytes on SPI.
     pub fn new_fitted_with(
         bus: B,
-        board: Board,
+        stage: PowerStage,
         settings: Settings,
         source: SettingsSource,
         build_hz: u32,
@@ -403,7 +403,7 @@ impl<B: ChainBus> Bridge<B> {
     ) -> (Bridge<B>, crate::rate::Rate) {
         let (chain, n, chain_error) = Self::detect(bus);
         let rate = crate::rate::fit_need(build_hz, need_ns(n));
-        let bridge = Self::build(chain, n, chain_error, board, settings, source, rate.us);
+        let bridge = Self::build(chain, n, chain_error, stage, settings, source, rate.us);
         (bridge, rate)
     }
 
@@ -420,7 +420,7 @@ impl<B: ChainBus> Bridge<B> {
         chain: Chain<B>,
         n: usize,
         chain_error: Option<ChainError<B::Error>>,
-        board: Board,
+        stage: PowerStage,
         settings: Settings,
         source: SettingsSource,
         tick_us: u32,
@@ -431,12 +431,12 @@ impl<B: ChainBus> Bridge<B> {
             let cfg = AxisConfig {
                 tick_us,
                 logical_shift: s.step_mode,
-                step: board.step,
-                drive: board.drive,
+                step: stage.step,
+                drive: stage.drive,
             };
             let mut device = Device::new(*s);
             let mut axis =
-                Axis::new(cfg, device.limits()).with_chip_config(board.config_register());
+                Axis::new(cfg, device.limits()).with_chip_config(stage.config_register());
             device.clamp_limits(&mut axis);
             device.apply_tuning(&mut axis);
             axis.energize();
@@ -447,7 +447,7 @@ impl<B: ChainBus> Bridge<B> {
             chain,
             group,
             devices,
-            board,
+            stage,
             base_address: settings.base_address,
             serial: settings.serial,
             supply: 0,
@@ -522,8 +522,8 @@ impl<B: ChainBus> Bridge<B> {
         self.devices.get(k)
     }
 
-    pub fn board(&self) -> &Board {
-        &self.board
+    pub fn power_stage(&self) -> &PowerStage {
+        &self.stage
     }
 
     /// Address base: axis k answers `base + k`.
@@ -579,7 +579,7 @@ impl<B: ChainBus> Bridge<B> {
         self.run_mode = RunMode::Boot;
         for (k, d) in self.devices.iter_mut().enumerate() {
             if let Some(a) = self.group.axis_mut(k) {
-                let _ = d.apply(Request::RunSleep(0x0F), a, &self.board);
+                let _ = d.apply(Request::RunSleep(0x0F), a, &self.stage);
             }
         }
     }
@@ -683,8 +683,8 @@ impl<B: ChainBus> Bridge<B> {
 
     /// New ADC samples (supply, temperature).
     pub fn on_analog(&mut self, sample: AnalogSample) {
-        self.supply = analog::supply_units(sample, self.board.analog);
-        self.temperature = analog::temperature_units(sample, self.board.analog);
+        self.supply = analog::supply_units(sample, self.stage.analog);
+        self.temperature = analog::temperature_units(sample, self.stage.analog);
     }
 
     /// New input levels of one axis from the board's own pins (inputs the
@@ -736,7 +736,7 @@ impl<B: ChainBus> Bridge<B> {
         self.apply_inputs();
         for (k, d) in self.devices.iter_mut().enumerate() {
             if let Some(a) = self.group.axis_mut(k) {
-                d.tick(now_ms, a, &self.board, self.temperature);
+                d.tick(now_ms, a, &self.stage, self.temperature);
             }
         }
         if self.devices.is_empty() {
@@ -804,7 +804,7 @@ impl<B: ChainBus> Bridge<B> {
                     WatchdogAction::SoftStop => Request::SoftStop,
                     WatchdogAction::HiZ => Request::RunSleep(0x0F),
                 };
-                let _ = d.apply(req, a, &self.board);
+                let _ = d.apply(req, a, &self.stage);
             }
             if acted {
                 s.trips = s.trips.saturating_add(1);
@@ -924,7 +924,7 @@ impl<B: ChainBus> Bridge<B> {
             return Err(CommandError::Unsupported);
         };
         let clamps = d.clamps;
-        let result = d.apply(req, a, &self.board);
+        let result = d.apply(req, a, &self.stage);
         let clamped = d.clamps.wrapping_sub(clamps);
         self.diag.limit_clamps = self.diag.limit_clamps.saturating_add(clamped);
         match result {
@@ -945,7 +945,7 @@ impl<B: ChainBus> Bridge<B> {
     pub fn query(&self, k: usize, q: Query) -> Option<Value> {
         let d = self.devices.get(k)?;
         let a = self.group.axis(k)?;
-        Some(d.query(q, a, &self.board, self.supply, self.temperature))
+        Some(d.query(q, a, &self.stage, self.supply, self.temperature))
     }
 
     /// The address axis `k` answers.

@@ -7,7 +7,7 @@
 //! 3.3 V rail's tolerance. The temperature uses the STM32F405 datasheet's
 //! typical sensor line (V25 = 0.76 V, 2.5 mV/°C); it reads the MCU die, which
 //! sits next to the powerSTEP01s on the board — a board sensor can replace it
-//! through [`Board::temperature_offset_eighths`].
+//! through [`AnalogBoard::temperature_offset_eighths`].
 
 // ADC conversions: 12-bit samples and board constants widened to u64/i64.
 #![allow(clippy::arithmetic_side_effects)]

@@ -40,10 +40,10 @@
 //!   last word: while it is off nothing runs (a requested speed or invert
 //!   is stored for when it turns on), turning it off soft-stops.
 
-use super::board::Board;
 use super::current::Current;
 use super::drv8711::{Drv8711Regs, Mapped};
-use super::settings::{AxisSettings, DriverMode, NAME_LEN, TEMPERATURE_LIMIT_MAX};
+use super::power_stage::PowerStage;
+use super::settings::{AxisSettings, DriverMode, TEMPERATURE_LIMIT_MAX};
 use crate::motion::axis::logical_to_physical;
 use crate::motion::units::full_steps_q16_from_logical;
 use crate::motion::{Axis, Limits};
@@ -61,226 +61,9 @@ pub const IDLE_AFTER_MS: u64 = 10_000;
 /// Overheat ends this many °C below the limit.
 pub const OVERHEAT_HYSTERESIS_C: u16 = 2;
 
-/// Fault bits of 0x25 (manual 8.3.17).
-pub mod fault {
-    pub const OTS: u8 = 1 << 0;
-    pub const AOCP: u8 = 1 << 1;
-    pub const BOCP: u8 = 1 << 2;
-    pub const APDF: u8 = 1 << 3;
-    pub const BPDF: u8 = 1 << 4;
-    pub const UVLO: u8 = 1 << 5;
-    pub const STD: u8 = 1 << 6;
-    pub const STDLAT: u8 = 1 << 7;
-    /// Faults that stop the axis until reset.
-    pub const STOPPING: u8 = OTS | AOCP | BOCP | APDF | BPDF | UVLO;
-    /// The latched bits a DRV8711 STATUS write of 0 clears.
-    pub const STOPPING_AND_STALL_LATCH: u8 = STOPPING | STDLAT;
-}
-
-/// Driver status (manual 8.3.10).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum DriverStatus {
-    Sleep = 1,
-    Active = 2,
-    Idle = 3,
-    Overheated = 4,
-}
-
-/// A PoStep60 command that changes something.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Request {
-    /// 0x01 (I2C): remember 4 bytes for the next read.
-    Loopback([u8; 4]),
-    /// 0x03: 0xDA run, 0x0F sleep.
-    RunSleep(u8),
-    /// 0x04: `current` must be the address this axis answers now.
-    SetAddress {
-        current: u8,
-        new: u8,
-    },
-    /// 0x05.
-    SetMode(u8),
-    /// 0x06 (DC motor PWM).
-    SetPwm,
-    SetFullScaleCurrent(Current),
-    SetIdleCurrent(Current),
-    SetOverheatCurrent(Current),
-    /// 0x33: 0..=8, others ignored.
-    SetStepMode(u8),
-    /// 0x34: °C.
-    SetTemperatureLimit(u8),
-    ResetFaults,
-    /// 0x3F.
-    WriteSettings,
-    /// 0x50.
-    SetPosition(i32),
-    /// 0x51–0x53 (16 bits on I2C and Modbus, 32 on USB): logical steps/s,
-    /// steps/s²; clamped to what the chip can follow.
-    SetMaxSpeed(u32),
-    SetAcceleration(u32),
-    SetDeceleration(u32),
-    /// 0x54 (USB: 0xB1 bytes 48..51).
-    SetRequestedSpeed(u32),
-    /// 0x55: bit 0.
-    SetInvert(u8),
-    /// 0x5E.
-    SetZero,
-    /// 0x5F: immediate stop, no ramp.
-    Stop,
-    /// 0x60.
-    SystemReset,
-    /// Extension: decelerate to a stop with the deceleration ramp.
-    SoftStop,
-    /// USB 0x80 byte 37 (CONFIG_SET): any mode 1..=6; 2 (step control) is
-    /// accepted here, 3 (DC) is not.
-    SetModeUsb(u8),
-    /// USB 0x80 bytes 20..35: the DRV8711 register image.
-    SetDriverRegisters(Drv8711Regs),
-    /// USB 0x90 in mode 2: run at 480 000 / `step_value` steps/s (0 stops)
-    /// in the direction `reverse` gives (inverted again by CTRL.RDIR).
-    StepDir {
-        step_value: u32,
-        reverse: bool,
-    },
-    /// USB 0xB1: the trajectory profile, all at once.
-    Trajectory(Trajectory),
-    /// USB 0xC0: the custom name.
-    SetName([u8; NAME_LEN]),
-}
-
-impl Request {
-    /// The request starts or changes motion: a target, a speed, a
-    /// direction, or a mode or trajectory that runs. The one list of them:
-    /// refused while homing (with a step-mode change), and the bus it came
-    /// on becomes the one the communication watchdog watches for the axis.
-    pub const fn commands_motion(&self) -> bool {
-        matches!(
-            self,
-            Request::SetPosition(_)
-                | Request::SetRequestedSpeed(_)
-                | Request::SetInvert(_)
-                | Request::StepDir { .. }
-                | Request::Trajectory(_)
-                | Request::SetMode(_)
-                | Request::SetModeUsb(_)
-        )
-    }
-}
-
-/// USB 0xB1 Write trajectory data.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct Trajectory {
-    /// Byte 2: 0 trajectory (mode 4), 1 BINx (mode 5), 2 auto run (mode 6).
-    pub profile: u8,
-    pub final_position: i32,
-    pub max_speed: u32,
-    pub acc: u32,
-    pub dec: u32,
-    pub end_switch: bool,
-    pub end_switch_nc: bool,
-    pub invert: bool,
-    pub bin1_steps: i32,
-    pub bin2_steps: i32,
-    pub requested_speed: u32,
-}
-
-/// A PoStep60 read.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Query {
-    Loopback,
-    HwFwInfo,
-    Voltage,
-    Temperature,
-    Pins,
-    DriverStatus,
-    DriverMode,
-    FullScaleCurrent,
-    IdleCurrent,
-    OverheatCurrent,
-    StepMode,
-    TemperatureLimit,
-    Faults,
-    Position,
-    MaxSpeed,
-    Acceleration,
-    Deceleration,
-    CurrentSpeed,
-    RequestedSpeed,
-    Invert,
-}
-
-/// The value of a query; transports choose the byte order.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Value {
-    U8(u8),
-    U16(u16),
-    I32(i32),
-    Current(Current),
-    /// Fixed byte sequences (HW/FW info, loopback).
-    Bytes([u8; 5], u8),
-}
-
-/// Why a request was not performed.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum CommandError {
-    /// Not in this driver mode (manual's gating).
-    WrongMode,
-    /// The axis is asleep (0x03 0x0F).
-    Asleep,
-    /// A fault that stops the axis is latched (reset faults first).
-    Faulted,
-    /// A value the manual says is ignored.
-    Ignored,
-    /// The bridge cannot do this (DC motor, STEP not routed on this board).
-    Unsupported,
-    /// Address change: BYTE0 is not this axis's address, or the new one is invalid.
-    BadAddress,
-    /// The bridge is writing settings to flash (programming stalls the
-    /// CPU): try again when the write is over; or homing runs.
-    Busy,
-    /// The bridge runs in its boot mode (after USB 0x02): no motion, no
-    /// settings changes until the application is restarted.
-    BootMode,
-}
-
-impl CommandError {
-    /// The reason's number on every bus that reports one (USB `InDATA[14]`,
-    /// diagnostics 0x0349).
-    pub const fn code(self) -> u8 {
-        match self {
-            CommandError::WrongMode => 1,
-            CommandError::Asleep => 2,
-            CommandError::Faulted => 3,
-            CommandError::Ignored => 4,
-            CommandError::Unsupported => 5,
-            CommandError::BadAddress => 6,
-            CommandError::Busy => 7,
-            CommandError::BootMode => 8,
-        }
-    }
-}
-
-/// What the bridge must do after a request succeeded.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum Effect {
-    None,
-    /// Store every axis's settings (deferred until all axes are at rest).
-    SaveSettings,
-    /// Restart the bridge after the reply.
-    SystemReset,
-    /// The address base changes (handled by the bridge).
-    SetAddress {
-        current: u8,
-        new: u8,
-    },
-}
+pub use super::command::{
+    fault, CommandError, DriverStatus, Effect, Query, Request, Trajectory, Value,
+};
 
 /// This firmware's own version (major, minor): the extension space's
 /// diagnostics (0x0343) report it.
@@ -414,7 +197,7 @@ impl Device {
 
     /// One control tick: faults, idle and overheat currents, end switch,
     /// auto run start. `temperature` in 1/8 °C.
-    pub fn tick(&mut self, now_ms: u64, axis: &mut Axis, board: &Board, temperature: u16) {
+    pub fn tick(&mut self, now_ms: u64, axis: &mut Axis, stage: &PowerStage, temperature: u16) {
         if axis.chip_resets() != self.resets_seen {
             // An undervoltage or reset of the chip: the axis has already
             // stopped and re-configured the chip.
@@ -444,7 +227,7 @@ impl Device {
         } else if celsius.saturating_add(OVERHEAT_HYSTERESIS_C) <= limit {
             self.overheated = false;
         }
-        self.apply_currents(axis, board);
+        self.apply_currents(axis, stage);
     }
 
     /// New BIN button levels (mode 5: a press moves).
@@ -598,7 +381,7 @@ impl Device {
         }
     }
 
-    fn apply_currents(&mut self, axis: &mut Axis, board: &Board) {
+    fn apply_currents(&mut self, axis: &mut Axis, stage: &PowerStage) {
         let ma = |c: Current| c.milliamps().unwrap_or(0);
         let (hold, run) = if self.overheated {
             let o = ma(self.settings.overheat);
@@ -611,7 +394,7 @@ impl Device {
         };
         // The axis keeps them in its chip image: written when they change
         // and again after every chip reset.
-        axis.set_currents(board.current_register(hold), board.current_register(run));
+        axis.set_currents(stage.current_register(hold), stage.current_register(run));
     }
 
     fn blocked(&self) -> Result<(), CommandError> {
@@ -683,9 +466,9 @@ impl Device {
         &mut self,
         req: Request,
         axis: &mut Axis,
-        board: &Board,
+        stage: &PowerStage,
     ) -> Result<Effect, CommandError> {
-        let limit = board.current_limit_ma;
+        let limit = stage.current_limit_ma;
         // While homing, motion requests wait (Stop, soft stop, Set zero
         // and sleep end the homing instead), and so does a step-mode change
         // (it would stop the search and re-express its position).
@@ -699,8 +482,8 @@ impl Device {
             Request::SetAddress { current, new } => {
                 return Ok(Effect::SetAddress { current, new });
             }
-            Request::SetMode(code) => return self.select_mode(code, false, axis, board),
-            Request::SetModeUsb(code) => return self.select_mode(code, true, axis, board),
+            Request::SetMode(code) => return self.select_mode(code, false, axis, stage),
+            Request::SetModeUsb(code) => return self.select_mode(code, true, axis, stage),
             Request::SetPwm => return self.refuse(CommandError::Unsupported),
             Request::SetFullScaleCurrent(c) => self.settings.full_scale = c.clamped(limit),
             Request::SetIdleCurrent(c) => self.settings.idle = c.clamped(limit),
@@ -733,7 +516,7 @@ impl Device {
             Request::SoftStop => axis.soft_stop(),
             Request::SystemReset => return Ok(Effect::SystemReset),
             Request::SetDriverRegisters(regs) => {
-                return self.set_driver_registers(regs, axis, board)
+                return self.set_driver_registers(regs, axis, stage)
             }
             Request::StepDir {
                 step_value,
@@ -767,10 +550,10 @@ impl Device {
         code: u8,
         usb: bool,
         axis: &mut Axis,
-        board: &Board,
+        stage: &PowerStage,
     ) -> Result<Effect, CommandError> {
         match DriverMode::from_code(code) {
-            Some(DriverMode::External) if !board.step_dir_routed => {
+            Some(DriverMode::External) if !stage.step_dir_routed => {
                 return self.refuse(CommandError::Unsupported)
             }
             Some(DriverMode::DcMotor) => return self.refuse(CommandError::Unsupported),
@@ -870,11 +653,11 @@ impl Device {
         &mut self,
         regs: Drv8711Regs,
         axis: &mut Axis,
-        board: &Board,
+        stage: &PowerStage,
     ) -> Result<Effect, CommandError> {
         let m = regs.mapped();
         self.settings.drv = regs.stored();
-        self.settings.full_scale = m.full_scale.clamped(board.current_limit_ma);
+        self.settings.full_scale = m.full_scale.clamped(stage.current_limit_ma);
         if let Some(mode) = m.step_mode {
             self.settings.step_mode = mode;
             axis.set_logical_shift(mode);
@@ -935,7 +718,7 @@ impl Device {
         &self,
         q: Query,
         axis: &Axis,
-        board: &Board,
+        stage: &PowerStage,
         supply: u16,
         temperature: u16,
     ) -> Value {
@@ -949,8 +732,8 @@ impl Device {
             Query::HwFwInfo => Value::Bytes(
                 [
                     DRIVER_ID,
-                    board.hw_version.0,
-                    board.hw_version.1,
+                    stage.hw_version.0,
+                    stage.hw_version.1,
                     POSTEP60_FW_VERSION.0,
                     POSTEP60_FW_VERSION.1,
                 ],

@@ -1,15 +1,18 @@
-//! The board description: everything about the hardware around the chips
-//! that turns PoStep60 settings into chip registers. One value, passed in by
-//! the firmware (or a test); nothing else hard-codes board facts.
+//! The power stage: the electrical facts of the hardware around the chips
+//! (drive mode, sense and phase resistance, supply, current limit, CONFIG,
+//! the analogue dividers) that turn PoStep60 settings into chip registers.
+//! One value, passed in by the firmware (or a test); nothing else hard-codes
+//! them. (The MCU's pins are `firmware::pins`; the real-hardware platform is
+//! `firmware::platform::stm32f405`.)
 
 use super::analog::AnalogBoard;
 use crate::powerstep::fields::{Config, DriveMode, StepSel};
 use crate::powerstep::units;
 
-/// Hardware facts of one bridge board (the same for every axis).
+/// Electrical facts of one box's power stage (the same for every axis).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub struct Board {
+pub struct PowerStage {
     /// Voltage mode (KVAL) or current mode (TVAL) drive.
     pub drive: DriveMode,
     /// The chips' STEP_SEL (1/128 in voltage mode, at most 1/16 in current mode).
@@ -33,10 +36,10 @@ pub struct Board {
     pub hw_version: (u8, u8),
 }
 
-impl Board {
+impl PowerStage {
     /// The reference board: voltage mode at 1/128, 1 Ω motors on 24 V,
     /// 6.0 A limit, supply divider ÷20, no STEP routing.
-    pub const REFERENCE: Board = Board {
+    pub const REFERENCE: PowerStage = PowerStage {
         drive: DriveMode::Voltage,
         step: StepSel::OneTwentyEighth,
         sense_milliohm: 100,
@@ -88,19 +91,19 @@ mod tests {
     #[test]
     fn voltage_mode_kval_is_current_times_resistance_over_supply() {
         // 1 A · 1 Ω = 1 V of 24 V = 4.17 % → KVAL 10.7 → 11
-        assert_eq!(Board::REFERENCE.current_register(1000), 11);
+        assert_eq!(PowerStage::REFERENCE.current_register(1000), 11);
         // 6 A → 6 V / 24 V = 25 % → 64
-        assert_eq!(Board::REFERENCE.current_register(6000), 64);
+        assert_eq!(PowerStage::REFERENCE.current_register(6000), 64);
         // above the limit: clamped to 6 A
-        assert_eq!(Board::REFERENCE.current_register(9000), 64);
+        assert_eq!(PowerStage::REFERENCE.current_register(9000), 64);
     }
 
     #[test]
     fn current_mode_tval_is_current_times_sense_resistor() {
-        let b = Board {
+        let b = PowerStage {
             drive: DriveMode::Current,
             step: StepSel::Sixteenth,
-            ..Board::REFERENCE
+            ..PowerStage::REFERENCE
         };
         // 3.281 A · 100 mΩ = 328.1 mV → TVAL 0x29
         assert_eq!(b.current_register(3281), 0x29);
@@ -110,6 +113,6 @@ mod tests {
 
     #[test]
     fn sw_mode_is_forced_to_user() {
-        assert_eq!(Board::REFERENCE.config_register(), 0x2C98);
+        assert_eq!(PowerStage::REFERENCE.config_register(), 0x2C98);
     }
 }
