@@ -240,10 +240,43 @@ type Build = fn(&[u8]) -> I2cCommand;
 /// Two commands take a choice of lengths: 0x70 (0 or 1) and 0x73 (2 + 2 per
 /// register, 1..=3 registers); [`lengths`] says which.
 fn shape(cmd: u8) -> Option<(u8, Build)> {
-    use I2cCommand as C;
+    query_shape(cmd)
+        .or_else(|| request_shape(cmd))
+        .or_else(|| extension_shape(cmd))
+}
+
+/// The PoStep60 reads (manual 8.3): no data bytes, one [`Query`] each.
+fn query_shape(cmd: u8) -> Option<(u8, Build)> {
     fn q(q: Query) -> I2cCommand {
         I2cCommand::Query(q)
     }
+    Some(match cmd {
+        0x0A => (0, |_| q(Query::HwFwInfo)),
+        0x10 => (0, |_| q(Query::Voltage)),
+        0x11 => (0, |_| q(Query::Temperature)),
+        0x12 => (0, |_| q(Query::Pins)),
+        0x13 => (0, |_| q(Query::DriverStatus)),
+        0x14 => (0, |_| q(Query::DriverMode)),
+        0x20 => (0, |_| q(Query::FullScaleCurrent)),
+        0x21 => (0, |_| q(Query::IdleCurrent)),
+        0x22 => (0, |_| q(Query::OverheatCurrent)),
+        0x23 => (0, |_| q(Query::StepMode)),
+        0x24 => (0, |_| q(Query::TemperatureLimit)),
+        0x25 => (0, |_| q(Query::Faults)),
+        0x40 => (0, |_| q(Query::Position)),
+        0x41 => (0, |_| q(Query::MaxSpeed)),
+        0x42 => (0, |_| q(Query::Acceleration)),
+        0x43 => (0, |_| q(Query::Deceleration)),
+        0x44 => (0, |_| q(Query::CurrentSpeed)),
+        0x45 => (0, |_| q(Query::RequestedSpeed)),
+        0x46 => (0, |_| q(Query::Invert)),
+        _ => return None,
+    })
+}
+
+/// The PoStep60 writes (manual 8.3): data bytes, one [`Request`] each.
+fn request_shape(cmd: u8) -> Option<(u8, Build)> {
+    use I2cCommand as C;
     fn b(d: &[u8], i: usize) -> u8 {
         d.get(i).copied().unwrap_or(0)
     }
@@ -269,18 +302,6 @@ fn shape(cmd: u8) -> Option<(u8, Build)> {
         }),
         0x05 => (1, |d| C::Request(Request::SetMode(b(d, 0)))),
         0x06 => (6, |_| C::Request(Request::SetPwm)),
-        0x0A => (0, |_| q(Query::HwFwInfo)),
-        0x10 => (0, |_| q(Query::Voltage)),
-        0x11 => (0, |_| q(Query::Temperature)),
-        0x12 => (0, |_| q(Query::Pins)),
-        0x13 => (0, |_| q(Query::DriverStatus)),
-        0x14 => (0, |_| q(Query::DriverMode)),
-        0x20 => (0, |_| q(Query::FullScaleCurrent)),
-        0x21 => (0, |_| q(Query::IdleCurrent)),
-        0x22 => (0, |_| q(Query::OverheatCurrent)),
-        0x23 => (0, |_| q(Query::StepMode)),
-        0x24 => (0, |_| q(Query::TemperatureLimit)),
-        0x25 => (0, |_| q(Query::Faults)),
         0x30 => (2, |d| C::Request(Request::SetFullScaleCurrent(current(d)))),
         0x31 => (2, |d| C::Request(Request::SetIdleCurrent(current(d)))),
         0x32 => (2, |d| C::Request(Request::SetOverheatCurrent(current(d)))),
@@ -288,13 +309,6 @@ fn shape(cmd: u8) -> Option<(u8, Build)> {
         0x34 => (1, |d| C::Request(Request::SetTemperatureLimit(b(d, 0)))),
         0x35 => (0, |_| C::Request(Request::ResetFaults)),
         0x3F => (0, |_| C::Request(Request::WriteSettings)),
-        0x40 => (0, |_| q(Query::Position)),
-        0x41 => (0, |_| q(Query::MaxSpeed)),
-        0x42 => (0, |_| q(Query::Acceleration)),
-        0x43 => (0, |_| q(Query::Deceleration)),
-        0x44 => (0, |_| q(Query::CurrentSpeed)),
-        0x45 => (0, |_| q(Query::RequestedSpeed)),
-        0x46 => (0, |_| q(Query::Invert)),
         0x50 => (4, |d| {
             C::Request(Request::SetPosition(i32::from_le_bytes([
                 b(d, 0),
@@ -317,6 +331,17 @@ fn shape(cmd: u8) -> Option<(u8, Build)> {
         0x5E => (0, |_| C::Request(Request::SetZero)),
         0x5F => (0, |_| C::Request(Request::Stop)),
         0x60 => (0, |_| C::Request(Request::SystemReset)),
+        _ => return None,
+    })
+}
+
+/// The bridge's own commands: axis selection, soft stop, extension space.
+fn extension_shape(cmd: u8) -> Option<(u8, Build)> {
+    use I2cCommand as C;
+    fn b(d: &[u8], i: usize) -> u8 {
+        d.get(i).copied().unwrap_or(0)
+    }
+    Some(match cmd {
         SELECT_AXIS => (0, |d| match d.first() {
             Some(&axis) => C::SelectAxis(axis),
             None => C::Selection,

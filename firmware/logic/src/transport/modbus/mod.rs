@@ -83,9 +83,9 @@ use heapless::Vec;
 use crate::ext_space::ExtError;
 use crate::postep60::settings::{Parity, Serial};
 use crate::postep60::{CommandError, Effect, Query, Request, Value};
+use pdu::{broadcast, respond};
 #[cfg(test)]
 use pdu::{parse, Pdu};
-use pdu::{broadcast, respond};
 
 /// Largest RTU ADU (server id + PDU + CRC).
 pub const ADU_MAX: usize = 256;

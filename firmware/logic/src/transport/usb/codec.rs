@@ -196,16 +196,7 @@ fn le32(r: &[u8], i: usize) -> u32 {
 /// report with byte 0 = 0.
 pub fn decode(r: &[u8]) -> Result<(UsbRequest, u8), UsbError> {
     let mut padded = [0u8; REPORT_LEN];
-    let r = match r.len() {
-        REPORT_LEN => r,
-        n if n == REPORT_LEN - 1 => {
-            for (dst, src) in padded.iter_mut().skip(1).zip(r.iter()) {
-                *dst = *src;
-            }
-            &padded[..]
-        }
-        n => return Err(UsbError::Length(n)),
-    };
+    let r = full_report(r, &mut padded)?;
     match b(r, 63) {
         0 => {}
         other => return Err(UsbError::LastByte(other)),
@@ -214,27 +205,7 @@ pub fn decode(r: &[u8]) -> Result<(UsbRequest, u8), UsbError> {
     let req = match b(r, 1) {
         cmd::DEVICE_INFO => UsbRequest::DeviceInfo,
         cmd::SYSTEM_RESET => UsbRequest::SystemReset,
-        cmd::WRITE_DRIVER_SETTINGS => {
-            let mut regs = [0u16; REGISTERS];
-            for (k, slot) in regs.iter_mut().enumerate() {
-                *slot = le16(r, 20usize.saturating_add(k.saturating_mul(2)));
-            }
-            UsbRequest::WriteDriverSettings(DriverSettings {
-                regs: Drv8711Regs(regs),
-                config_set: b(r, 37),
-                max_temp: b(r, 38),
-                idle: Current {
-                    tq: b(r, 39),
-                    ai: b(r, 40),
-                },
-                overheat: Current {
-                    tq: b(r, 41),
-                    ai: b(r, 42),
-                },
-                address: b(r, 43),
-                serial_code: b(r, 44),
-            })
-        }
+        cmd::WRITE_DRIVER_SETTINGS => UsbRequest::WriteDriverSettings(driver_settings(r)),
         cmd::READ_DRIVER_SETTINGS => UsbRequest::ReadDriverSettings,
         cmd::ERASE_EEPROM | cmd::ERASE_EEPROM_TABLE => UsbRequest::EraseEeprom,
         cmd::READ_EEPROM => UsbRequest::ReadEeprom,
@@ -250,22 +221,7 @@ pub fn decode(r: &[u8]) -> Result<(UsbRequest, u8), UsbError> {
         cmd::RUN_SLEEP => UsbRequest::RunSleep(b(r, 20)),
         cmd::STREAM_OFF => UsbRequest::StreamOff,
         cmd::SET_PWM => UsbRequest::SetPwm,
-        cmd::TRAJECTORY => {
-            let flags = b(r, 36);
-            UsbRequest::Trajectory(Trajectory {
-                profile: b(r, 2),
-                final_position: le32(r, 20) as i32,
-                max_speed: le32(r, 24),
-                acc: le32(r, 28),
-                dec: le32(r, 32),
-                end_switch: flags & 0x01 != 0,
-                end_switch_nc: flags & 0x02 != 0,
-                invert: flags & 0x04 != 0,
-                bin1_steps: le32(r, 40) as i32,
-                bin2_steps: le32(r, 44) as i32,
-                requested_speed: le32(r, 48),
-            })
-        }
+        cmd::TRAJECTORY => UsbRequest::Trajectory(trajectory(r)),
         cmd::TRAJECTORY_STOP => UsbRequest::Stop,
         cmd::TRAJECTORY_ZERO => UsbRequest::Zero,
         cmd::WRITE_NAME => {
@@ -280,18 +236,7 @@ pub fn decode(r: &[u8]) -> Result<(UsbRequest, u8), UsbError> {
             address: u16::from_be_bytes([b(r, 20), b(r, 21)]),
             quantity: b(r, 22),
         },
-        cmd::EXT_WRITE => {
-            let mut data = [0u16; EXT_MAX];
-            for (k, slot) in data.iter_mut().enumerate() {
-                let at = 24usize.saturating_add(k.saturating_mul(2));
-                *slot = u16::from_be_bytes([b(r, at), bk(r, at, 1)]);
-            }
-            UsbRequest::ExtWrite {
-                address: u16::from_be_bytes([b(r, 20), b(r, 21)]),
-                quantity: b(r, 22),
-                data,
-            }
-        }
+        cmd::EXT_WRITE => ext_write(r),
         cmd::ENTER_DFU => {
             if [b(r, 20), b(r, 21), b(r, 22), b(r, 23)] != DFU_MAGIC {
                 return Err(UsbError::DfuMagic);
@@ -301,6 +246,78 @@ pub fn decode(r: &[u8]) -> Result<(UsbRequest, u8), UsbError> {
         other => return Err(UsbError::Unknown(other)),
     };
     Ok((req, axis))
+}
+
+/// The 64-byte report: `r` itself, or a 63-byte `r` behind a zero byte 0
+/// (copied into `padded`).
+fn full_report<'a>(r: &'a [u8], padded: &'a mut [u8; REPORT_LEN]) -> Result<&'a [u8], UsbError> {
+    match r.len() {
+        REPORT_LEN => Ok(r),
+        n if n == REPORT_LEN - 1 => {
+            for (dst, src) in padded.iter_mut().skip(1).zip(r.iter()) {
+                *dst = *src;
+            }
+            Ok(&padded[..])
+        }
+        n => Err(UsbError::Length(n)),
+    }
+}
+
+/// 0x81's payload (manual 10.2): the DRV8711 registers from byte 20 and
+/// the settings after them.
+fn driver_settings(r: &[u8]) -> DriverSettings {
+    let mut regs = [0u16; REGISTERS];
+    for (k, slot) in regs.iter_mut().enumerate() {
+        *slot = le16(r, 20usize.saturating_add(k.saturating_mul(2)));
+    }
+    DriverSettings {
+        regs: Drv8711Regs(regs),
+        config_set: b(r, 37),
+        max_temp: b(r, 38),
+        idle: Current {
+            tq: b(r, 39),
+            ai: b(r, 40),
+        },
+        overheat: Current {
+            tq: b(r, 41),
+            ai: b(r, 42),
+        },
+        address: b(r, 43),
+        serial_code: b(r, 44),
+    }
+}
+
+/// 0xB1's payload (manual 10.2): target, limits, flags, BIN steps, speed.
+fn trajectory(r: &[u8]) -> Trajectory {
+    let flags = b(r, 36);
+    Trajectory {
+        profile: b(r, 2),
+        final_position: le32(r, 20) as i32,
+        max_speed: le32(r, 24),
+        acc: le32(r, 28),
+        dec: le32(r, 32),
+        end_switch: flags & 0x01 != 0,
+        end_switch_nc: flags & 0x02 != 0,
+        invert: flags & 0x04 != 0,
+        bin1_steps: le32(r, 40) as i32,
+        bin2_steps: le32(r, 44) as i32,
+        requested_speed: le32(r, 48),
+    }
+}
+
+/// The extension write's payload: address, quantity, big-endian registers
+/// from byte 24.
+fn ext_write(r: &[u8]) -> UsbRequest {
+    let mut data = [0u16; EXT_MAX];
+    for (k, slot) in data.iter_mut().enumerate() {
+        let at = 24usize.saturating_add(k.saturating_mul(2));
+        *slot = u16::from_be_bytes([b(r, at), bk(r, at, 1)]);
+    }
+    UsbRequest::ExtWrite {
+        address: u16::from_be_bytes([b(r, 20), b(r, 21)]),
+        quantity: b(r, 22),
+        data,
+    }
 }
 
 /// An IN report being built: writes past the end are dropped (never panic).
