@@ -179,8 +179,36 @@ impl<B: ChainBus> Bridge<B> {
     fn diag_block(&self) -> [u16; diag::LEN] {
         let mut r = [0u16; diag::LEN];
         let m = self.modbus_stats();
+        for (at, v) in self.diag_counters() {
+            put32(&mut r, at, v);
+        }
+        for (i, x) in m.exceptions_by_code.iter().enumerate() {
+            put32(
+                &mut r,
+                diag::MODBUS_EXCEPTION_01.saturating_add((i as u8).saturating_mul(2)),
+                *x,
+            );
+        }
+        for (i, a) in self.group.iter().enumerate() {
+            let base = self.resets_base.get(i).copied().unwrap_or(0);
+            if let Some(slot) = r.get_mut(usize::from(diag::CHIP_RESETS_AXIS0).saturating_add(i)) {
+                *slot = a.chip_resets().wrapping_sub(base).min(0xFFFF) as u16;
+            }
+        }
+        for (at, v) in self.diag_words() {
+            if let Some(slot) = r.get_mut(usize::from(at)) {
+                *slot = v;
+            }
+        }
+        put32(&mut r, diag::BUILD_ID, self.build_id);
+        r
+    }
+
+    /// The 32-bit counters of the diagnostics block, by address.
+    fn diag_counters(&self) -> [(u8, u32); 22] {
+        let m = self.modbus_stats();
         let d = &self.diag;
-        let counters = [
+        [
             (diag::MODBUS_FRAMES, m.frames_ok),
             (diag::MODBUS_CRC_ERRORS, m.crc_errors),
             (
@@ -208,24 +236,12 @@ impl<B: ChainBus> Bridge<B> {
             (diag::TICK_MAX_US, self.timing.max_us),
             (diag::TICK_OVERRUNS, self.timing.overruns),
             (diag::TICKS, self.timing.ticks),
-        ];
-        for (at, v) in counters {
-            put32(&mut r, at, v);
-        }
-        for (i, x) in m.exceptions_by_code.iter().enumerate() {
-            put32(
-                &mut r,
-                diag::MODBUS_EXCEPTION_01.saturating_add((i as u8).saturating_mul(2)),
-                *x,
-            );
-        }
-        for (i, a) in self.group.iter().enumerate() {
-            let base = self.resets_base.get(i).copied().unwrap_or(0);
-            if let Some(slot) = r.get_mut(usize::from(diag::CHIP_RESETS_AXIS0).saturating_add(i)) {
-                *slot = a.chip_resets().wrapping_sub(base).min(0xFFFF) as u16;
-            }
-        }
-        let words = [
+        ]
+    }
+
+    /// The 16-bit words of the diagnostics block, by address.
+    fn diag_words(&self) -> [(u8, u16); 10] {
+        [
             (diag::CHAIN_LENGTH, self.axes() as u16),
             (diag::RESET_CAUSE, self.reset_cause as u16),
             (diag::SETTINGS_SOURCE, self.source as u16),
@@ -253,14 +269,7 @@ impl<B: ChainBus> Bridge<B> {
                 self.last_refusal
                     .map_or(0, |(k, e)| u16::from(k) << 8 | u16::from(e.code())),
             ),
-        ];
-        for (at, v) in words {
-            if let Some(slot) = r.get_mut(usize::from(at)) {
-                *slot = v;
-            }
-        }
-        put32(&mut r, diag::BUILD_ID, self.build_id);
-        r
+        ]
     }
 
     fn homing_block(&self, k: usize) -> Result<[u16; homing::LEN], ExtError> {

@@ -121,15 +121,7 @@ impl<B: ChainBus> Bridge<B> {
     /// none, or not yet).
     fn respond(&mut self, req: UsbRequest, axis: u8, now_ms: u64) -> Option<InReport> {
         let k = usize::from(axis);
-        // With no chip detected, axis 0 still takes extension requests (the
-        // bridge-scope blocks answer; an axis's are refused by `ext_read`).
-        let exists = k < self.axes()
-            || (k == 0
-                && self.axes() == 0
-                && matches!(
-                    req,
-                    UsbRequest::ExtRead { .. } | UsbRequest::ExtWrite { .. }
-                ));
+        let exists = self.usb_axis_exists(k, &req);
         Some(match req {
             UsbRequest::SystemReset => {
                 let target = match self.run_mode {
@@ -167,13 +159,7 @@ impl<B: ChainBus> Bridge<B> {
             }
             UsbRequest::ReadOther => self.other_report(k, axis),
             UsbRequest::WriteName(name) => self.write_name(k, axis, name),
-            UsbRequest::ReadName => {
-                let mut r = InReport::new(0, cmd::WRITE_NAME, axis, status::DONE);
-                if let Some(d) = self.devices.get(k) {
-                    r.put(16, &d.settings.name);
-                }
-                r
-            }
+            UsbRequest::ReadName => self.name_report(k, axis),
             UsbRequest::ExtRead { address, quantity } => {
                 self.usb.pending_read = Some(PendingRead {
                     axis,
@@ -187,19 +173,50 @@ impl<B: ChainBus> Bridge<B> {
                 address,
                 quantity,
                 data,
-            } => {
-                let n = usize::from(quantity);
-                let r = match data.get(..n).filter(|d| !d.is_empty()) {
-                    Some(d) => self.ext_write(k, address, d),
-                    None => Err(ExtError::IllegalValue),
-                };
-                InReport::new(0, cmd::EXT_WRITE, axis, ext_status(r))
-            }
+            } => self.ext_write_report(k, axis, address, &data, quantity),
             other => {
                 let (req, response) = Self::device_request(other)?;
                 self.simple(k, axis, req, response)
             }
         })
+    }
+
+    /// Whether a report for axis `k` has an axis to go to. With no chip
+    /// detected, axis 0 still takes extension requests (the bridge-scope
+    /// blocks answer; an axis's are refused by `ext_read`).
+    fn usb_axis_exists(&self, k: usize, req: &UsbRequest) -> bool {
+        k < self.axes()
+            || (k == 0
+                && self.axes() == 0
+                && matches!(
+                    req,
+                    UsbRequest::ExtRead { .. } | UsbRequest::ExtWrite { .. }
+                ))
+    }
+
+    /// 0xC1: the axis's name.
+    fn name_report(&self, k: usize, axis: u8) -> InReport {
+        let mut r = InReport::new(0, cmd::WRITE_NAME, axis, status::DONE);
+        if let Some(d) = self.devices.get(k) {
+            r.put(16, &d.settings.name);
+        }
+        r
+    }
+
+    /// The extension write: the first `quantity` registers of `data`.
+    fn ext_write_report(
+        &mut self,
+        k: usize,
+        axis: u8,
+        address: u16,
+        data: &[u16],
+        quantity: u8,
+    ) -> InReport {
+        let r = match data.get(..usize::from(quantity)).filter(|d| !d.is_empty()) {
+            Some(d) => self.ext_write(k, address, d),
+            None => Err(ExtError::IllegalValue),
+        };
+        InReport::new(0, cmd::EXT_WRITE, axis, ext_status(r))
     }
 
     /// A report that is one PoStep60 request for the axis and answers with

@@ -66,6 +66,16 @@ pub(super) enum Pdu<'a> {
     },
 }
 
+impl Pdu<'_> {
+    fn address_is_extension(&self) -> bool {
+        match *self {
+            Pdu::Read { address, .. }
+            | Pdu::WriteSingle { address, .. }
+            | Pdu::WriteMultiple { address, .. } => map::is_extension(address),
+        }
+    }
+}
+
 fn be16(b: &[u8], at: usize) -> u16 {
     u16::from_be_bytes([
         b.get(at).copied().unwrap_or(0),
@@ -146,45 +156,11 @@ fn serve(
     target: &mut impl ModbusTarget,
 ) -> Result<(), NotServed> {
     // Responses are at most 1 + 2 + 2·125 bytes: they fit the 256-byte buffer.
-    match parse(pdu)? {
-        Pdu::Read { address, quantity } if map::is_extension(address) => {
-            let mut regs = [0u16; READ_QUANTITY_MAX as usize];
-            let regs = regs
-                .get_mut(..usize::from(quantity))
-                .ok_or(Exception::IllegalDataValue)?;
-            target
-                .ext_read(axis, address, regs)
-                .map_err(ext_exception)?;
-            let count = u8::try_from(regs.len().saturating_mul(2))
-                .map_err(|_| Exception::IllegalDataValue)?;
-            let _ = out.push(READ_HOLDING_REGISTERS);
-            let _ = out.push(count);
-            for r in regs.iter() {
-                let _ = out.extend_from_slice(&r.to_be_bytes());
-            }
-        }
-        Pdu::WriteSingle { address, data } if map::is_extension(address) => {
-            let mut regs = [0u16; WRITE_QUANTITY_MAX as usize];
-            let n = registers_of(data, &mut regs);
-            target
-                .ext_write(axis, address, regs.get(..n).unwrap_or(&[]))
-                .map_err(ext_exception)?;
-            let _ = out.extend_from_slice(pdu);
-        }
-        Pdu::WriteMultiple {
-            address,
-            quantity,
-            data,
-        } if map::is_extension(address) => {
-            let mut regs = [0u16; WRITE_QUANTITY_MAX as usize];
-            let n = registers_of(data, &mut regs);
-            target
-                .ext_write(axis, address, regs.get(..n).unwrap_or(&[]))
-                .map_err(ext_exception)?;
-            let _ = out.push(WRITE_MULTIPLE_REGISTERS);
-            let _ = out.extend_from_slice(&address.to_be_bytes());
-            let _ = out.extend_from_slice(&quantity.to_be_bytes());
-        }
+    let request = parse(pdu)?;
+    if request.address_is_extension() {
+        return serve_extension(axis, request, pdu, out, target);
+    }
+    match request {
         Pdu::Read { address, quantity } => {
             let query = map::read(address, quantity)?;
             let value = target
@@ -213,6 +189,58 @@ fn serve(
         } => {
             let req = map::write(address, quantity, data)?;
             execute(axis, req, stats, target)?;
+            let _ = out.push(WRITE_MULTIPLE_REGISTERS);
+            let _ = out.extend_from_slice(&address.to_be_bytes());
+            let _ = out.extend_from_slice(&quantity.to_be_bytes());
+        }
+    }
+    Ok(())
+}
+
+/// The response PDU for a request to the extension space (address high
+/// byte ≠ 0): registers through the target's `ext_read` / `ext_write`.
+fn serve_extension(
+    axis: usize,
+    request: Pdu<'_>,
+    pdu: &[u8],
+    out: &mut Vec<u8, ADU_MAX>,
+    target: &mut impl ModbusTarget,
+) -> Result<(), NotServed> {
+    match request {
+        Pdu::Read { address, quantity } => {
+            let mut regs = [0u16; READ_QUANTITY_MAX as usize];
+            let regs = regs
+                .get_mut(..usize::from(quantity))
+                .ok_or(Exception::IllegalDataValue)?;
+            target
+                .ext_read(axis, address, regs)
+                .map_err(ext_exception)?;
+            let count = u8::try_from(regs.len().saturating_mul(2))
+                .map_err(|_| Exception::IllegalDataValue)?;
+            let _ = out.push(READ_HOLDING_REGISTERS);
+            let _ = out.push(count);
+            for r in regs.iter() {
+                let _ = out.extend_from_slice(&r.to_be_bytes());
+            }
+        }
+        Pdu::WriteSingle { address, data } => {
+            let mut regs = [0u16; WRITE_QUANTITY_MAX as usize];
+            let n = registers_of(data, &mut regs);
+            target
+                .ext_write(axis, address, regs.get(..n).unwrap_or(&[]))
+                .map_err(ext_exception)?;
+            let _ = out.extend_from_slice(pdu);
+        }
+        Pdu::WriteMultiple {
+            address,
+            quantity,
+            data,
+        } => {
+            let mut regs = [0u16; WRITE_QUANTITY_MAX as usize];
+            let n = registers_of(data, &mut regs);
+            target
+                .ext_write(axis, address, regs.get(..n).unwrap_or(&[]))
+                .map_err(ext_exception)?;
             let _ = out.push(WRITE_MULTIPLE_REGISTERS);
             let _ = out.extend_from_slice(&address.to_be_bytes());
             let _ = out.extend_from_slice(&quantity.to_be_bytes());
