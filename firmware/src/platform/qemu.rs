@@ -48,7 +48,7 @@
 //!   console (below) close and open them (N = receive bit 0..15 in wire
 //!   order: press closes the contact, the bit reads 0), logged as
 //!   `ioext console: …`.
-//! * **Test console and fault injection**: USART1 (QEMU's first `-serial`,
+//! * **Test console and fault injection** (`qemu_console.rs`): USART1 (QEMU's first `-serial`,
 //!   `QEMU_CONSOLE` in `cargo xtask qemu-run`) takes the lines of
 //!   `stepbridge_sim::ConsoleLine`, read at every control tick ([`TickTimer::acknowledge`],
 //!   the tick's first step) and logged (`sim console: …`): the buttons
@@ -76,10 +76,10 @@ use bridge_logic::postep60::analog::AnalogSample;
 use bridge_logic::powerstep::chain::{clock_windows, Frames, Plan};
 use bridge_logic::powerstep::ChainBus;
 use bridge_logic::transport::i2c::{I2cSlave, I2cTarget};
-use core::sync::atomic::{AtomicBool, AtomicU16, AtomicU32, Ordering};
+use core::sync::atomic::Ordering;
 use defmt_semihosting as _;
 use drivers_core::iwdg::WindowError;
-use stepbridge_sim::{ConsoleLine, Fault, HomeCam, Lines, ShiftChain, SimChain};
+use stepbridge_sim::{ConsoleLine, HomeCam, Lines, ShiftChain, SimChain};
 use stm32f4xx_hal::pac;
 use stm32f4xx_hal::rcc::{Config, Enable, Rcc, RccExt, Reset};
 
@@ -98,6 +98,11 @@ use usb_device::device::UsbDeviceState;
 #[path = "qemu_flash.rs"]
 mod flash;
 pub use flash::{settings_flash, SettingsFlash, SettingsFlashError};
+
+// The test console and the fault injection it drives.
+#[path = "qemu_console.rs"]
+mod console;
+use console::{take_chip_faults, Console, INPUTS_CLOSED, JUMPER, SUPPLY_MV, SUPPLY_OWN};
 
 /// Which platform this image runs on (logged at boot).
 pub const NAME: &str = "QEMU netduinoplus2";
@@ -397,7 +402,9 @@ pub fn chain_driver(
 ) -> ChainLink {
     let mut chain = SimChain::new(AXES);
     // Faults present at power-up: the boot file's console lines.
-    flash::boot_lines(|line| apply(ConsoleLine::parse(line, IOEXT_165 * 8, AXES), line.len()));
+    flash::boot_lines(|line| {
+        console::apply(ConsoleLine::parse(line, IOEXT_165 * 8, AXES), line.len())
+    });
     take_chip_faults(&mut chain);
     // The last axis has a home switch: a cam on its shaft presses SW below
     // HOME_CAM_EDGE microsteps (the end-to-end test homes it over Modbus).
@@ -549,162 +556,6 @@ fn supply_counts(mv: u32, vrefint: u16) -> u16 {
     let pin_uv = u64::from(mv) * 1000 / 20;
     let counts = (pin_uv * u64::from(vrefint) + 605_000) / 1_210_000;
     counts.min(4095) as u16
-}
-
-// ---------------------------------------------------------------- console
-
-/// `SUPPLY_MV` when no `supply MV` line is in force.
-const SUPPLY_OWN: u32 = u32::MAX;
-/// The supply the console set, mV (read by `housekeeping`'s [`Analog`]).
-static SUPPLY_MV: AtomicU32 = AtomicU32::new(SUPPLY_OWN);
-/// The I/O extension's MOSI is jumpered to MISO (read by `ioext_run`).
-static JUMPER: AtomicBool = AtomicBool::new(false);
-/// Inputs the console closed, bit i = receive bit i (read by `ioext_run`).
-static INPUTS_CLOSED: AtomicU32 = AtomicU32::new(0);
-/// A fault for chip k that [`ChainDriver`] has not yet applied: 0 none, else
-/// [`fault_code`]. Written by the console (control tick), taken before
-/// every chain window (also the control tick, and `init`).
-static CHIP_FAULTS: [AtomicU16; AXES] = [const { AtomicU16::new(0) }; AXES];
-
-fn fault_code(f: Fault) -> u16 {
-    match f {
-        Fault::Dead(stuck) => 1 | u16::from(stuck) << 8,
-        Fault::Revive => 2,
-        Fault::PowerCycle => 3,
-        Fault::Uvlo => 4,
-        Fault::Overcurrent => 5,
-        _ => 0,
-    }
-}
-
-fn fault_of(code: u16) -> Option<Fault> {
-    Some(match code & 0xFF {
-        1 => Fault::Dead((code >> 8) as u8),
-        2 => Fault::Revive,
-        3 => Fault::PowerCycle,
-        4 => Fault::Uvlo,
-        5 => Fault::Overcurrent,
-        _ => return None,
-    })
-}
-
-/// Apply the faults the console handed over.
-fn take_chip_faults(chain: &mut SimChain) {
-    for (k, slot) in CHIP_FAULTS.iter().enumerate() {
-        if slot.load(Ordering::Relaxed) == 0 {
-            continue;
-        }
-        if let (Some(f), Some(chip)) = (
-            fault_of(slot.swap(0, Ordering::Relaxed)),
-            chain.device_mut(k),
-        ) {
-            chip.inject(f);
-        }
-    }
-}
-
-/// Longest console line (`chip 7 dead FF`, `supply 200000` and some slack).
-const CONSOLE_LINE: usize = 24;
-
-/// The test console on USART1 (module docs).
-struct Console {
-    usart: pac::USART1,
-    line: [u8; CONSOLE_LINE],
-    len: usize,
-}
-
-impl Console {
-    fn start(rcc: &mut Rcc) -> Console {
-        // SAFETY: nothing else in the firmware uses USART1 (the app never
-        // takes it out of `pac::Peripherals`); from here on this console
-        // owns it.
-        let usart = unsafe { pac::USART1::steal() };
-        pac::USART1::enable(rcc);
-        // Receive only; QEMU ignores the baud rate.
-        usart.cr1().write(|w| w.ue().set_bit().re().set_bit());
-        Console {
-            usart,
-            line: [0; CONSOLE_LINE],
-            len: 0,
-        }
-    }
-
-    /// Take every byte USART1 has (QEMU holds the rest back until DR is
-    /// read, so none is lost between polls) and act on complete lines.
-    fn poll(&mut self) {
-        while self.usart.sr().read().rxne().bit_is_set() {
-            let byte = self.usart.dr().read().dr().bits() as u8;
-            match byte {
-                b'\n' | b'\r' => {
-                    let len = core::mem::take(&mut self.len);
-                    let line = self.line.get(..len).unwrap_or(&[]);
-                    let parsed = ConsoleLine::parse(line, IOEXT_165 * 8, AXES);
-                    apply(parsed, len);
-                }
-                _ => {
-                    if let Some(slot) = self.line.get_mut(self.len) {
-                        *slot = byte;
-                        self.len += 1;
-                    }
-                }
-            }
-        }
-    }
-}
-
-/// Act on one console line.
-fn apply(line: Option<ConsoleLine>, len: usize) {
-    match line {
-        Some(ConsoleLine::Input(c)) => {
-            let bit = 1u32 << c.bit;
-            if c.closed {
-                INPUTS_CLOSED.fetch_or(bit, Ordering::Relaxed);
-            } else {
-                INPUTS_CLOSED.fetch_and(!bit, Ordering::Relaxed);
-            }
-            defmt::info!(
-                "ioext console: input {=usize} {=str}",
-                c.bit,
-                if c.closed { "closed" } else { "open" }
-            );
-        }
-        Some(ConsoleLine::Supply(mv)) => {
-            let mv = mv.unwrap_or(SUPPLY_OWN);
-            SUPPLY_MV.store(mv, Ordering::Relaxed);
-            if mv == SUPPLY_OWN {
-                defmt::info!("sim console: supply back to the fixed 24 V reading");
-            } else {
-                defmt::info!("sim console: supply reads {=u32} mV", mv);
-            }
-        }
-        Some(ConsoleLine::Jumper(on)) => {
-            JUMPER.store(on, Ordering::Relaxed);
-            defmt::info!(
-                "sim console: I/O extension MOSI -> MISO jumper {=str}",
-                if on { "on" } else { "off" }
-            );
-        }
-        Some(l) => {
-            let Some((k, f)) = l.chip_fault() else {
-                return;
-            };
-            if let Some(slot) = CHIP_FAULTS.get(k) {
-                slot.store(fault_code(f), Ordering::Relaxed);
-            }
-            let what = match l {
-                ConsoleLine::ChipDead { .. } => "dead",
-                ConsoleLine::ChipRevive(_) => "revived",
-                ConsoleLine::ChipReset(_) => "reset",
-                ConsoleLine::ChipUvlo(_) => "undervoltage",
-                _ => "overcurrent",
-            };
-            defmt::info!("sim console: chip {=usize}: {=str}", k, what);
-        }
-        None if len == 0 => {}
-        None => defmt::warn!(
-            "sim console: unknown line (press N, release N, chip K dead|revive|reset|uvlo|ocd, supply MV|off, jumper on|off)"
-        ),
-    }
 }
 
 /// I2C1 stand-in: I2C1 is never started (QEMU's I2C transfers hang), so its
