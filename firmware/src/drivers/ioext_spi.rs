@@ -178,69 +178,8 @@ impl Regs<IoReg> for IoExtRegs {
                     spi.dr().write(|w| w.bits(v16));
                 }
                 IoReg::Dma1(_) | IoReg::Dma2(_) => {}
-                IoReg::Tim(r) => match r {
-                    TimReg::Cr1 => {
-                        t.cr1().write(|w| w.bits(value));
-                    }
-                    TimReg::Dier => {
-                        t.dier().write(|w| w.bits(value));
-                    }
-                    TimReg::Sr => {
-                        t.sr().write(|w| w.bits(value));
-                    }
-                    TimReg::Egr => {
-                        t.egr().write(|w| w.bits(value));
-                    }
-                    TimReg::Ccmr1 => {
-                        t.ccmr1_output().write(|w| w.bits(value));
-                    }
-                    TimReg::Ccmr2 => {
-                        t.ccmr2_output().write(|w| w.bits(value));
-                    }
-                    TimReg::Ccer => {
-                        t.ccer().write(|w| w.bits(value));
-                    }
-                    TimReg::Cnt => {
-                        t.cnt().write(|w| w.bits(value));
-                    }
-                    TimReg::Psc => {
-                        t.psc().write(|w| w.bits(value));
-                    }
-                    TimReg::Arr => {
-                        t.arr().write(|w| w.bits(value));
-                    }
-                    TimReg::Rcr => {
-                        t.rcr().write(|w| w.bits(value));
-                    }
-                    TimReg::Ccr1 => {
-                        t.ccr(0).write(|w| w.bits(value));
-                    }
-                    TimReg::Ccr2 => {
-                        t.ccr(1).write(|w| w.bits(value));
-                    }
-                    TimReg::Ccr3 => {
-                        t.ccr(2).write(|w| w.bits(value));
-                    }
-                    TimReg::Bdtr => {
-                        t.bdtr().write(|w| w.bits(value));
-                    }
-                },
-                IoReg::Gpio(r) => match r {
-                    GpioReg::Moder => {
-                        g.moder().write(|w| w.bits(value));
-                    }
-                    GpioReg::Pupdr => {
-                        g.pupdr().write(|w| w.bits(value));
-                    }
-                    GpioReg::Afrh => {
-                        g.afrh().write(|w| w.bits(value));
-                    }
-                    GpioReg::Bsrr => {
-                        g.bsrr().write(|w| w.bits(value));
-                    }
-                    // Read-only.
-                    GpioReg::Idr => {}
-                },
+                IoReg::Tim(r) => write_tim(t, r, value),
+                IoReg::Gpio(r) => write_gpio(g, r, value),
             }
         }
     }
@@ -303,4 +242,93 @@ pub fn ioext_port(
     // The pins' modes and CS are driven through GPIOB from here on.
     let _ = (spi, tim, dma1, dma2, pins, cs);
     core_io::IoExtPort::new(IoExtRegs { bufs }, rcc.clocks.sysclk().raw())
+}
+
+/// One volatile write of a whole TIM1 register.
+///
+/// # Safety
+///
+/// As for [`IoExtRegs::write`]: the value comes from
+/// `drivers_core::ioext_spi`, checked against the RM0090 model on the host.
+#[inline]
+unsafe fn write_tim(t: &pac::tim1::RegisterBlock, r: TimReg, value: u32) {
+    // SAFETY: the caller's (above).
+    unsafe {
+        match r {
+            TimReg::Cr1 => {
+                t.cr1().write(|w| w.bits(value));
+            }
+            TimReg::Dier => {
+                t.dier().write(|w| w.bits(value));
+            }
+            TimReg::Sr => {
+                t.sr().write(|w| w.bits(value));
+            }
+            TimReg::Egr => {
+                t.egr().write(|w| w.bits(value));
+            }
+            TimReg::Ccmr1 => {
+                t.ccmr1_output().write(|w| w.bits(value));
+            }
+            TimReg::Ccmr2 => {
+                t.ccmr2_output().write(|w| w.bits(value));
+            }
+            TimReg::Ccer => {
+                t.ccer().write(|w| w.bits(value));
+            }
+            TimReg::Cnt => {
+                t.cnt().write(|w| w.bits(value));
+            }
+            TimReg::Psc => {
+                t.psc().write(|w| w.bits(value));
+            }
+            TimReg::Arr => {
+                t.arr().write(|w| w.bits(value));
+            }
+            TimReg::Rcr => {
+                t.rcr().write(|w| w.bits(value));
+            }
+            TimReg::Ccr1 => {
+                t.ccr(0).write(|w| w.bits(value));
+            }
+            TimReg::Ccr2 => {
+                t.ccr(1).write(|w| w.bits(value));
+            }
+            TimReg::Ccr3 => {
+                t.ccr(2).write(|w| w.bits(value));
+            }
+            TimReg::Bdtr => {
+                t.bdtr().write(|w| w.bits(value));
+            }
+        }
+    }
+}
+
+/// One volatile write of a whole GPIOB register (only the port's pins'
+/// fields change: `drivers_core::ioext_spi`).
+///
+/// # Safety
+///
+/// As for [`write_tim`].
+#[inline]
+unsafe fn write_gpio(g: &pac::gpiob::RegisterBlock, r: GpioReg, value: u32) {
+    // SAFETY: the caller's (above).
+    unsafe {
+        match r {
+            GpioReg::Moder => {
+                g.moder().write(|w| w.bits(value));
+            }
+            GpioReg::Pupdr => {
+                g.pupdr().write(|w| w.bits(value));
+            }
+            GpioReg::Afrh => {
+                g.afrh().write(|w| w.bits(value));
+            }
+            GpioReg::Bsrr => {
+                g.bsrr().write(|w| w.bits(value));
+            }
+            // Read-only.
+            GpioReg::Idr => {}
+        }
+    }
 }
