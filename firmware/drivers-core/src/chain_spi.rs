@@ -261,6 +261,8 @@ impl Default for ChainBuffers {
 
 /// Smallest SPI baud-rate divider (2, 4, …, 256) giving at most `max_hz`,
 /// and its CR1.BR code.
+// div doubles from 2 to at most 256 and br counts those steps (≤ 7).
+#[allow(clippy::arithmetic_side_effects)]
 pub fn sck_divider(pclk_hz: u32, max_hz: u32) -> (u32, u32) {
     let mut div = 2;
     let mut br = 0;
@@ -272,6 +274,8 @@ pub fn sck_divider(pclk_hz: u32, max_hz: u32) -> (u32, u32) {
 }
 
 /// Clock cycles of `hz` for `ns` nanoseconds, rounded up.
+// A u32 × u32 product fits a u64; the divisor is a non-zero constant.
+#[allow(clippy::arithmetic_side_effects)]
 pub fn cycles(ns: u32, hz: u32) -> u32 {
     let c = (u64::from(ns) * u64::from(hz)).div_ceil(1_000_000_000);
     u32::try_from(c).unwrap_or(u32::MAX)
@@ -360,6 +364,8 @@ struct Timing {
 }
 
 impl Timing {
+    // u32 values widened to u64 (no overflow), divisors at least 1.
+    #[allow(clippy::arithmetic_side_effects)]
     fn new(gap_ticks: u32, setup_ticks: u32, timclk_hz: u32, sck_hz: u32) -> Timing {
         // ARR = ticks: the pulse lasts ticks + 1 timer-clock periods.
         let ns = |ticks: u32| {
@@ -405,7 +411,7 @@ impl<H: ChainHw + ChainMemory> ChainSpi<H> {
     /// clocked DMA2.
     pub fn new(mut hw: H, clocks: ChainClocks) -> ChainSpi<H> {
         let (div, br) = sck_divider(clocks.pclk2_hz, SCK_MAX_HZ);
-        let sck_hz = clocks.pclk2_hz / div;
+        let sck_hz = clocks.pclk2_hz.checked_div(div).unwrap_or(clocks.pclk2_hz);
         hw.cs(true);
         configure_spi(&mut hw, br);
 
@@ -667,7 +673,7 @@ impl<H: ChainHw + ChainMemory> ChainSpi<H> {
 
     /// How long a batch may take before `poll` stops it.
     fn bound_us(&self) -> u64 {
-        2 * self.nominal_us() + 100
+        self.nominal_us().saturating_mul(2).saturating_add(100)
     }
 
     /// Point both streams at window `self.window` and enable them (TX

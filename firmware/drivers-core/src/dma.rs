@@ -328,6 +328,9 @@ pub fn read_pair<R: Copy>(
 /// The LIFCR and HIFCR words that clear `flags` of each `(stream,
 /// flags)`. A `const fn`: for fixed streams call it in a `const` block, so
 /// the words are constants (`opt-level = "s"` does not unroll the loop).
+// Evaluated at build time for the drivers' fixed stream lists: an index
+// or an overflow there fails the build, not the firmware.
+#[allow(clippy::indexing_slicing, clippy::arithmetic_side_effects)]
 pub const fn clear_words(streams: &[(u8, Flags)]) -> [u32; 2] {
     let mut words = [0u32; 2];
     let mut i = 0;

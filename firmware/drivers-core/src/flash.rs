@@ -246,10 +246,17 @@ impl<P: FlashPort> StoreFlash<P> {
         if end > STORE_SIZE {
             return Err(StoreFlashError::OutOfBounds);
         }
-        if start % unit != 0 || len % unit != 0 {
+        let aligned = |v: usize| v.checked_rem(unit) == Some(0);
+        if !aligned(start) || !aligned(len) {
             return Err(StoreFlashError::NotAligned);
         }
         Ok(start)
+    }
+
+    /// The bus address of store offset `start` (< [`STORE_SIZE`], 256 KiB,
+    /// after [`Self::check`]: the sum stays far below 4 GiB).
+    fn address(start: usize) -> u32 {
+        STORE_BASE.saturating_add(u32::try_from(start).unwrap_or(u32::MAX))
     }
 
     /// Step 2: wait for BSY to clear.
@@ -335,8 +342,7 @@ impl<P: FlashPort> ReadNorFlash for StoreFlash<P> {
 
     fn read(&mut self, offset: u32, bytes: &mut [u8]) -> Result<(), Self::Error> {
         let start = Self::check(offset, bytes.len(), Self::READ_SIZE)?;
-        // `start` < STORE_SIZE (256 KiB): fits in u32.
-        let address = STORE_BASE + start as u32;
+        let address = Self::address(start);
         self.port.read_array(address, bytes);
         Ok(())
     }
@@ -355,7 +361,7 @@ impl<P: FlashPort> NorFlash for StoreFlash<P> {
         let start = Self::check(from, len, Self::ERASE_SIZE)?;
         let first = start / SECTOR_SIZE;
         let sectors = SECTOR_NUMBERS
-            .get(first..first + len / SECTOR_SIZE)
+            .get(first..first.saturating_add(len / SECTOR_SIZE))
             .ok_or(StoreFlashError::OutOfBounds)?;
         for &number in sectors {
             self.erase_sector(number)
@@ -366,7 +372,7 @@ impl<P: FlashPort> NorFlash for StoreFlash<P> {
 
     fn write(&mut self, offset: u32, bytes: &[u8]) -> Result<(), Self::Error> {
         let start = Self::check(offset, bytes.len(), Self::WRITE_SIZE)?;
-        self.program(STORE_BASE + start as u32, bytes)
+        self.program(Self::address(start), bytes)
             .map_err(StoreFlashError::Controller)
     }
 }

@@ -564,7 +564,11 @@ const fn set_field(reg: u32, field: u8, width: u32, value: u32) -> u32 {
     if shift >= 32 {
         return reg;
     }
-    let mask = ((1u32 << width) - 1) << shift;
+    let ones = match 1u32.checked_shl(width) {
+        Some(v) => v.wrapping_sub(1),
+        None => u32::MAX,
+    };
+    let mask = ones << shift;
     (reg & !mask) | ((value << shift) & mask)
 }
 

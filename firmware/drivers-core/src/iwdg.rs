@@ -113,6 +113,8 @@ pub const WINDOW_POLLS_MAX: u32 = 1 << 15;
 
 /// PR and RLR for `timeout_ms` at `lsi_hz`: the smallest prescaler (finest
 /// step) whose reload fits in 12 bits; the longest timeout if none does.
+// u32 × u32 in u64; the divider is 4 << pr with pr ≤ PR_MAX (6).
+#[allow(clippy::arithmetic_side_effects)]
 pub const fn prescaler_and_reload(timeout_ms: u32, lsi_hz: u32) -> (u32, u32) {
     let cycles = timeout_ms as u64 * lsi_hz as u64 / 1000;
     let mut pr = 0;
@@ -128,6 +130,8 @@ pub const fn prescaler_and_reload(timeout_ms: u32, lsi_hz: u32) -> (u32, u32) {
 }
 
 /// The timeout of `pr`, `rlr` at `lsi_hz`, in µs: RLR + 1 counts.
+// rlr + 1 in u64.
+#[allow(clippy::arithmetic_side_effects)]
 pub const fn timeout_us(pr: u32, rlr: u32, lsi_hz: u32) -> u64 {
     Window { pr, rlr }.counts_us(rlr as u64 + 1, lsi_hz, false)
 }
@@ -163,6 +167,8 @@ impl Window {
     }
 
     /// `counts` counts at `lsi_hz`, µs, rounded down or up.
+    // counts ≤ 0x1000, divider ≤ 256: the product is far below u64::MAX; hz ≥ 1.
+    #[allow(clippy::arithmetic_side_effects)]
     const fn counts_us(self, counts: u64, lsi_hz: u32, up: bool) -> u64 {
         let hz = if lsi_hz == 0 { 1 } else { lsi_hz as u64 };
         let cycles_e6 = counts * self.divider() * 1_000_000;
@@ -180,6 +186,8 @@ impl Window {
     }
 
     /// The longest, µs (rounded up): RLR + 1 counts.
+    // rlr + 1 in u64.
+    #[allow(clippy::arithmetic_side_effects)]
     pub const fn max_us(self, lsi_hz: u32) -> u64 {
         self.counts_us(self.rlr as u64 + 1, lsi_hz, true)
     }

@@ -185,7 +185,11 @@ pub fn config(s: Serial, pclk_hz: u32) -> Option<(u32, u32, u32)> {
     if s.baud == 0 || pclk_hz / 16 < s.baud {
         return None;
     }
-    let brr = (pclk_hz + s.baud / 2) / s.baud;
+    // baud ≥ 1 and ≤ pclk / 16 (above): no overflow, no division by 0.
+    let brr = pclk_hz
+        .saturating_add(s.baud / 2)
+        .checked_div(s.baud)
+        .unwrap_or(u32::MAX);
     if brr > 0xFFFF {
         return None;
     }
@@ -326,7 +330,7 @@ impl<P: Rs485Port> Rs485<P> {
                         // SR was just read, so this DR write also clears TC.
                         Some(&byte) => {
                             self.port.write(UsartReg::Dr, u32::from(byte));
-                            self.pos += 1;
+                            self.pos = self.pos.saturating_add(1);
                         }
                         None => {
                             self.port.modify(UsartReg::Cr1, |cr1| cr1 & !CR1_TXEIE);
