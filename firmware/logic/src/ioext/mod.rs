@@ -78,7 +78,7 @@
 
 pub mod clock;
 pub mod config;
-mod ext;
+mod extension;
 pub mod image;
 pub mod mapping;
 pub mod plan;
@@ -90,7 +90,7 @@ mod tests;
 
 pub use clock::{clock_plan, requested_period_ns, ClockPlan, Clocks, Engine, Period};
 pub use config::{Config, SpiMode, WireBits, MAX_BITS, WORDS};
-pub use ext::{Diagnostics, IoExtension, NotRunning};
+pub use extension::{Diagnostics, IoExtension, NotRunning};
 pub use image::{ImageError, IoSettings, IMAGE_LEN};
 pub use mapping::{
     AxisInputs, AxisMap, AxisOutputs, Contact, Input, InputBit, Mapping, Output, OutputBit,

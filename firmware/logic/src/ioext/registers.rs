@@ -36,7 +36,7 @@
 //! starts a transfer at the next control tick.
 
 use super::config::{options, Config};
-use super::ext::IoExtension;
+use super::extension::IoExtension;
 use super::mapping::{input_from_register, output_from_register, Input, Output};
 use super::IoError;
 

@@ -1,4 +1,6 @@
-//! The extension's state and its transfer scheduler.
+//! The extension itself ([`IoExtension`]): its state and its transfer
+//! scheduler. (`ext_space` is the bridge's register space on the buses;
+//! this is the I/O extension, the '165/'595 shift-register port.)
 
 use super::clock::{clock_plan, ClockPlan, Clocks};
 use super::config::{Config, WireBits};
