@@ -138,9 +138,9 @@ impl SimChain {
         self.last_rx.clear();
         let mut count = 0u64;
         for (t, r) in tx.iter().zip(rx.iter_mut()) {
-            let miso = sdo(&self.devices, &sr, n - 1);
+            let miso = sdo(&self.devices, &sr, n.saturating_sub(1));
             for k in (1..n).rev() {
-                let b = sdo(&self.devices, &sr, k - 1);
+                let b = sdo(&self.devices, &sr, k.saturating_sub(1));
                 if let Some(slot) = sr.get_mut(k) {
                     *slot = b;
                 }
@@ -149,7 +149,7 @@ impl SimChain {
             *r = miso;
             let _ = self.last_tx.push(*t);
             let _ = self.last_rx.push(miso);
-            count += 1;
+            count = count.saturating_add(1);
         }
         for (d, b) in self.devices.iter_mut().zip(sr.iter()).take(n) {
             d.latch(*b);

@@ -287,7 +287,7 @@ const fn bits_mask(bits: u8) -> u32 {
     if bits >= 32 {
         u32::MAX
     } else {
-        (1u32 << bits) - 1
+        (1u32 << bits).wrapping_sub(1)
     }
 }
 
@@ -396,7 +396,11 @@ pub fn encode(cmd: &Command) -> Frame {
     let be = value.to_be_bytes();
     let n = usize::from(n.min(3));
     let mut bytes = [byte, 0, 0, 0];
-    for (dst, src) in bytes.iter_mut().skip(1).zip(be.iter().skip(4 - n)) {
+    for (dst, src) in bytes
+        .iter_mut()
+        .skip(1)
+        .zip(be.iter().skip(4usize.saturating_sub(n)))
+    {
         *dst = *src;
     }
     Frame { bytes, len: 1 + n }

@@ -137,7 +137,7 @@ impl ShiftChain {
     /// Set the input that receive bit `i` reads ('165 #`i / 8`, input
     /// `H − i % 8`).
     pub fn set_rx_bit(&mut self, i: usize, level: bool) {
-        self.set_input(i / 8, 7 - i % 8, level);
+        self.set_input(i / 8, 7usize.saturating_sub(i % 8), level);
     }
 
     /// Output `pin` (0 = QA … 7 = QH) of '595 #`chip` (false past the chain).
@@ -193,11 +193,11 @@ impl ShiftChain {
         // the inputs). CS falling: SH/LD rises, the '165s keep the snapshot.
         if before.cs != h.cs && h.cs {
             self.out595 = self.sr595;
-            self.latches += 1;
+            self.latches = self.latches.wrapping_add(1);
             self.load();
         }
         if before.sck != h.sck && h.sck {
-            self.rising_edges += 1;
+            self.rising_edges = self.rising_edges.wrapping_add(1);
             self.clock(h.cs, before.mosi);
         }
         self.lines = h;
@@ -208,20 +208,20 @@ impl ShiftChain {
     /// '595s always.
     fn clock(&mut self, cs: bool, mosi: bool) {
         if !cs {
-            let n = self.n165;
-            for k in 0..n {
-                let ser = if k + 1 < n {
-                    self.sr165[k + 1] & 0x80 != 0
-                } else {
-                    self.tail
-                };
-                self.sr165[k] = (self.sr165[k] << 1) | u8::from(ser);
+            // Each '165 takes the MSB of the next one; the last takes the
+            // serial input of the chain's end.
+            let n = self.n165.min(self.sr165.len());
+            let mut ser = self.tail;
+            for slot in self.sr165.iter_mut().take(n).rev() {
+                let out = *slot & 0x80 != 0;
+                *slot = (*slot << 1) | u8::from(ser);
+                ser = out;
             }
         }
         let mut ser = mosi;
-        for k in 0..self.n595 {
-            let out = self.sr595[k] & 0x80 != 0;
-            self.sr595[k] = (self.sr595[k] << 1) | u8::from(ser);
+        for slot in self.sr595.iter_mut().take(self.n595) {
+            let out = *slot & 0x80 != 0;
+            *slot = (*slot << 1) | u8::from(ser);
             ser = out;
         }
     }
@@ -303,10 +303,10 @@ impl ConsoleLine {
         let mut n = 0;
         for word in text.split_ascii_whitespace() {
             *w.get_mut(n)? = word;
-            n += 1;
+            n = n.saturating_add(1);
         }
         let chip = |k: &str| k.parse::<usize>().ok().filter(|k| *k < chips);
-        match &w[..n] {
+        match w.get(..n).unwrap_or(&[]) {
             ["chip", k, "dead"] => Some(ConsoleLine::ChipDead {
                 chip: chip(k)?,
                 stuck: 0xFF,
