@@ -1,7 +1,7 @@
 //! The stepbridge firmware's hardware side, shared by the RTIC app
 //! (`main.rs`) and the on-target tests (`tests/`):
 //!
-//! * [`board`]: every pin and peripheral assignment;
+//! * [`pins`]: every pin and peripheral assignment;
 //! * [`platform`]: the one seam between the board and QEMU — the same names
 //!   (clocks, chain driver, settings flash, analog, I2C, control timer,
 //!   watchdog, reset cause, fault handler, log transport) from
@@ -9,7 +9,9 @@
 //! * [`drivers`]: one module per peripheral driver (chain SPI, I2C slave,
 //!   RS-485, flash, analog, SysTick clock, I/O-extension SPI);
 //! * [`failsafe`]: the panic handler and the STBY switch-off it shares with
-//!   the fault handlers.
+//!   the fault handlers;
+//! * [`startup`] and [`handoff`]: the app's start-up steps and its
+//!   task-to-bridge hand-offs that need no RTIC resource.
 //!
 //! Every decision about what goes on a bus belongs to the logic crate
 //! (`bridge_logic`); this crate only moves bytes.
@@ -23,8 +25,10 @@
 
 pub mod drivers;
 pub mod failsafe;
+pub mod handoff;
 pub mod pins;
 pub mod platform;
+pub mod startup;
 
 /// The firmware's build id (diagnostics register 0x0344–45, boot log): the
 /// first 32 bits of the git commit it was built from, 0 when it was not

@@ -106,12 +106,10 @@ fn main() {
 #[cfg(target_os = "none")]
 #[rtic::app(device = stm32f4xx_hal::pac, dispatchers = [UART4, UART5, USART6])]
 mod app {
-    use bridge_logic::bridge::{
-        boot_settings, BatchState, Bridge, ResetCause, ResetTarget, SettingsSource,
-    };
-    use bridge_logic::ioext::{Action, WireBits};
-    use bridge_logic::persist::{Store, StoreError, MAX_IMAGE};
-    use bridge_logic::postep60::settings::{Settings, IMAGE_LEN};
+    use bridge_logic::bridge::{BatchState, Bridge, ResetCause, ResetTarget};
+    use bridge_logic::ioext::Action;
+    use bridge_logic::persist::Store;
+    use bridge_logic::postep60::settings::IMAGE_LEN;
     use bridge_logic::postep60::PowerStage;
     use bridge_logic::powerstep::chain::{Frames, MAX_DEVICES, MAX_WINDOWS};
     use bridge_logic::transport::i2c::I2cSlave;
@@ -122,18 +120,19 @@ mod app {
     use firmware::drivers::chain_spi::ChainSpiError;
     use firmware::drivers::clock::{self, Mono};
     use firmware::drivers::i2c_slave::LockedTarget;
-    use firmware::drivers::ioext_spi::{IoExtBuffers, IoExtError, Started};
+    use firmware::drivers::ioext_spi::{IoExtBuffers, Started};
     use firmware::drivers::mcu;
     use firmware::drivers::rs485::{Rs485, Rx};
     use firmware::drivers::usb::Link;
+    use firmware::handoff::{apply_address_change, hand_over_io, report_io};
     use firmware::pins;
     use firmware::platform::{
         self, Analog, ChainLink, I2cSlaveDriver, IoExtDriver, SettingsFlash, Stopwatch, TickTimer,
         Usb, Watchdog,
     };
-    use rtic::Mutex;
+    use firmware::startup::{arm_watchdog, delay_ms, load_settings, log_modbus};
     use rtic_monotonics::Timebase;
-    use rtic_sync::channel::{Receiver, Sender, TrySendError};
+    use rtic_sync::channel::{Receiver, Sender};
     use rtic_sync::signal::{SignalReader, SignalWriter};
     use stm32f4xx_hal::gpio::GpioExt;
     use stm32f4xx_hal::pac::Interrupt;
@@ -456,44 +455,6 @@ mod app {
         tick
     }
 
-    /// Start-up's last step: the watchdog in the bridge's window.
-    fn arm_watchdog(watchdog: &mut Watchdog, bridge: &Bridge<ChainLink>) {
-        let window = bridge.watchdog_window();
-        match watchdog.feed_in(window) {
-            Ok(()) => info!("watchdog: {} window", window),
-            Err(e) => error!("watchdog: {} window not in effect ({})", window, e),
-        }
-    }
-
-    /// The settings to boot with: the store's, or factory settings (and why).
-    fn load_settings(store: &mut Store<SettingsFlash>) -> (Settings, SettingsSource) {
-        let mut image = [0u8; MAX_IMAGE];
-        let loaded = store
-            .load(&mut image)
-            .map(|n| image.get(..n).unwrap_or(&[]));
-        let (settings, source) = boot_settings(loaded, |e| *e == StoreError::Empty);
-        info!("settings: {}", source);
-        (settings, source)
-    }
-
-    /// The boot log line of the Modbus line (the e2e test waits for it).
-    fn log_modbus(rs485: &Rs485, bridge: &Bridge<ChainLink>, timing: Timing) {
-        let serial = bridge.serial();
-        if rs485.is_configured() {
-            info!(
-                "modbus: RTU on USART2, {=u32} baud, parity {}, t1.5 {=u32} us, t3.5 {=u32} us, server ids from {=u8}, {=usize} axes",
-                serial.baud,
-                serial.parity,
-                timing.t15_us,
-                timing.t35_us,
-                bridge.base_address(),
-                bridge.axes()
-            );
-        } else {
-            error!("modbus: USART2 configuration refused, no Modbus");
-        }
-    }
-
     /// Waits for the next interrupt the platform's way (`platform::idle_wait`:
     /// a spin on the board, `wfi` under QEMU).
     #[idle]
@@ -599,26 +560,6 @@ mod app {
         platform::with_chain(|c| c.on_timer());
     }
 
-    /// The I/O extension's actions to `ioext_run`, oldest first; one that
-    /// finds the channel full waits for the next tick.
-    fn hand_over_io(
-        tx: &mut Sender<'static, Action, IO_ACTIONS>,
-        pending: &mut Option<Action>,
-        new: Option<Action>,
-    ) {
-        for action in [pending.take(), new].into_iter().flatten() {
-            match tx.try_send(action) {
-                Ok(()) => {}
-                Err(TrySendError::Full(a)) => {
-                    if pending.replace(a).is_some() {
-                        error!("ioext: action dropped (channel full twice)");
-                    }
-                }
-                Err(TrySendError::NoReceiver(_)) => error!("ioext: task gone, action dropped"),
-            }
-        }
-    }
-
     /// The I/O extension's driver side: start each action the control tick
     /// hands over, then wait for the DMA task to end the transfer, at most
     /// the plan's timeout; past it, stop the transfer and report a failure.
@@ -665,23 +606,6 @@ mod app {
         if let Some(result) = cx.shared.ioext.lock(|d| d.on_interrupt()) {
             report_io(&mut cx.shared.bridge, result);
             let _ = cx.local.io_ended_bit.try_send(());
-        }
-    }
-
-    /// The end of a transfer, to the bridge.
-    fn report_io(
-        bridge: &mut impl Mutex<T = Bridge<ChainLink>>,
-        result: Result<WireBits, IoExtError>,
-    ) {
-        let taken = bridge.lock(|b| match &result {
-            Ok(rx) => b.on_io_done(rx),
-            Err(_) => b.on_io_failed(),
-        });
-        if let Err(e) = result {
-            warn!("ioext: transfer failed ({})", e);
-        }
-        if taken.is_err() {
-            warn!("ioext: a transfer ended that the bridge did not run");
         }
     }
 
@@ -760,17 +684,6 @@ mod app {
         cx.shared
             .i2c
             .lock(|i2c| i2c.on_error(proto, &mut LockedTarget(bridge)));
-    }
-
-    /// Reprogram the I2C own addresses if the bridge's address base changed
-    /// since the last call (through either bus).
-    fn apply_address_change(
-        bridge: &mut impl Mutex<T = Bridge<ChainLink>>,
-        i2c: &mut I2cSlaveDriver,
-    ) {
-        if let Some((p, s)) = bridge.lock(|b| b.take_address_change().then(|| b.i2c_addresses())) {
-            i2c.set_addresses(p, s);
-        }
     }
 
     /// Slow jobs at the lowest priority: ADC samples (~71 µs of blocking
@@ -852,10 +765,5 @@ mod app {
                 }
             }
         });
-    }
-
-    /// Busy-wait `ms` milliseconds at `sysclk_hz` (init only).
-    fn delay_ms(ms: u32, sysclk_hz: u32) {
-        cortex_m::asm::delay(ms.saturating_mul(sysclk_hz / 1_000));
     }
 }
