@@ -243,17 +243,34 @@ pub fn explain(bus: &mut dyn Bus, unit: u8, address: u16, e: Error) -> Error {
     }
 }
 
+/// What [`find_reason`] reads of the axis: driver status, faults, mode, moving.
+struct AxisNow {
+    ds: u16,
+    faults: u16,
+    mode: u16,
+    moving: bool,
+}
+
 fn find_reason(bus: &mut dyn Bus, unit: u8, address: u16) -> Option<String> {
-    let ds = one(bus, unit, reg::DRIVER_STATUS).ok()?;
-    let faults = one(bus, unit, reg::FAULTS).ok()?;
-    let mode = one(bus, unit, reg::DRIVER_MODE).ok()?;
-    let moving = motion(bus, unit).map(|m| !m.settled()).unwrap_or(false);
+    let now = AxisNow {
+        ds: one(bus, unit, reg::DRIVER_STATUS).ok()?,
+        faults: one(bus, unit, reg::FAULTS).ok()?,
+        mode: one(bus, unit, reg::DRIVER_MODE).ok()?,
+        moving: motion(bus, unit).map(|m| !m.settled()).unwrap_or(false),
+    };
+    refused_by_state(unit, address, &now).or_else(|| busy_reason(unit, address, &now))
+}
+
+/// The reasons the command itself or the axis's state (faulted, asleep, the
+/// wrong driver mode) give, in order.
+fn refused_by_state(unit: u8, address: u16, now: &AxisNow) -> Option<String> {
+    let mode = now.mode;
     let motion_cmd = matches!(address, 0x50 | 0x54 | 0x55) || address == HOMING_COMMAND;
     if address == reg::SET_MODE {
         return Some(format!(
             "axis is refusing that driver mode (mode 3 DC motor, and 1 external step/dir where \
              the board does not route STEP, cannot run on a powerSTEP01); it stays in mode {mode} ({})",
-            mode_name(mode)
+            mode_name(now.mode)
         ));
     }
     if address == 0x06 {
@@ -261,30 +278,36 @@ fn find_reason(bus: &mut dyn Bus, unit: u8, address: u16) -> Option<String> {
             "axis cannot drive a DC motor (PWM is refused by a powerSTEP01 bridge)".into(),
         );
     }
-    if faults & STOPPING_FAULTS != 0 {
+    if now.faults & STOPPING_FAULTS != 0 {
         return Some(format!(
             "axis is faulted ({}): clear with `stepctl reset-faults {unit}`",
-            fault_names(faults)
+            fault_names(now.faults)
         ));
     }
-    if ds == 1 && motion_cmd {
+    if now.ds == 1 && motion_cmd {
         return Some(format!(
             "axis is asleep: wake it with `stepctl wake {unit}`"
         ));
     }
-    if address == reg::SET_POSITION && !matches!(mode, 4 | 5) {
+    if address == reg::SET_POSITION && !matches!(now.mode, 4 | 5) {
         return Some(format!(
             "axis is in driver mode {mode} ({}): set position needs mode 4 (position) or 5 (BINx): \
              `stepctl settings set {unit} mode position`",
-            mode_name(mode)
+            mode_name(now.mode)
         ));
     }
-    if matches!(address, 0x54 | 0x55) && mode != 6 {
+    if matches!(address, 0x54 | 0x55) && now.mode != 6 {
         return Some(format!(
             "axis is in driver mode {mode} ({}): requested speed and invert need mode 6 (auto run)",
-            mode_name(mode)
+            mode_name(now.mode)
         ));
     }
+    None
+}
+
+/// The reasons that need the axis to rest or sleep: a save, a chip register,
+/// homing, or just busy.
+fn busy_reason(unit: u8, address: u16, now: &AxisNow) -> Option<String> {
     if address == reg::WRITE_SETTINGS {
         return Some(
             "settings cannot be saved while an axis moves (or while a save is in progress): \
@@ -309,16 +332,16 @@ fn find_reason(bus: &mut dyn Bus, unit: u8, address: u16) -> Option<String> {
         });
     }
     if address == HOMING_COMMAND {
-        return Some(if moving {
+        return Some(if now.moving {
             "axis is moving: homing starts only from rest".into()
         } else {
             "homing is not possible now (end switch disabled, asleep or faulted)".into()
         });
     }
-    if moving {
+    if now.moving {
         return Some("axis is busy (moving, homing or saving)".into());
     }
-    if ds == 1 {
+    if now.ds == 1 {
         return Some(format!(
             "axis is asleep: wake it with `stepctl wake {unit}`"
         ));
