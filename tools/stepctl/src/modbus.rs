@@ -279,7 +279,38 @@ impl<L: Link> Rtu<L> {
         self.link
             .send(request)
             .map_err(|e| Error::Comm(format!("{what}: cannot send on {name}: {e}")))?;
-        let deadline = Instant::now() + self.timeout;
+        let fc = pdu.first().copied().unwrap_or(0);
+        let reply = self.receive(id, fc, &expect, &what, &name)?;
+        if self.trace {
+            eprintln!("stepctl: {name} <- {}", hex(&reply));
+        }
+        self.check_reply(id, fc, &expect, what, &name, &reply)?;
+        Ok((request.to_vec(), reply))
+    }
+
+    /// A malformed reply: the rest of it is drained, the error names it.
+    fn fail(&mut self, what: &str, id: u8, name: &str, reply: &[u8], why: &str) -> Error {
+        self.link.drain();
+        Error::Comm(format!(
+            "{what}: {why} from id {id} on {name}: {} (line noise or a second master?)",
+            hex(reply)
+        ))
+    }
+
+    /// Receive one reply ADU to function `fc`: id and function, then what
+    /// follows them (an exception's code, a byte count and that many bytes,
+    /// or an echo) and the CRC, as far as it comes before the timeout.
+    fn receive(
+        &mut self,
+        id: u8,
+        fc: u8,
+        expect: &Expect,
+        what: &str,
+        name: &str,
+    ) -> Result<Vec<u8>> {
+        let deadline = Instant::now()
+            .checked_add(self.timeout)
+            .ok_or_else(|| Error::Usage(format!("timeout {:?} is too long", self.timeout)))?;
         let comm = |e: io::Error| Error::Comm(format!("{what}: {name}: {e}"));
         let mut reply = vec![0u8; 2];
         let n = self.link.recv(&mut reply, deadline).map_err(comm)?;
@@ -289,68 +320,82 @@ impl<L: Link> Rtu<L> {
                 "{what}: no reply from id {id} on {name} within {ms} ms (wrong id, port or serial settings? try `stepctl scan`)"
             )));
         }
-        let fail = |link: &mut L, reply: &[u8], why: &str| {
-            link.drain();
-            Error::Comm(format!(
-                "{what}: {why} from id {id} on {name}: {} (line noise or a second master?)",
-                hex(reply)
-            ))
-        };
         if n < 2 {
-            return Err(fail(&mut self.link, &reply[..n], "short reply"));
+            let got = reply.get(..n).unwrap_or_default().to_vec();
+            return Err(self.fail(what, id, name, &got, "short reply"));
         }
-        let fc = pdu[0];
-        let rest = if reply[1] == fc | 0x80 {
+        let function = reply.get(1).copied().unwrap_or(0);
+        let rest = if function == fc | 0x80 {
             3
-        } else if reply[1] != fc {
-            return Err(fail(&mut self.link, &reply, "reply with another function"));
+        } else if function != fc {
+            return Err(self.fail(what, id, name, &reply, "reply with another function"));
         } else {
             match expect {
                 Expect::Registers(_) => {
                     let mut count = [0u8; 1];
                     let k = self.link.recv(&mut count, deadline).map_err(comm)?;
                     if k == 0 {
-                        return Err(fail(&mut self.link, &reply, "short reply"));
+                        return Err(self.fail(what, id, name, &reply, "short reply"));
                     }
-                    reply.push(count[0]);
-                    usize::from(count[0]) + 2
+                    let [count] = count;
+                    reply.push(count);
+                    usize::from(count).saturating_add(2)
                 }
                 Expect::Echo(_) => 6,
             }
         };
         let at = reply.len();
-        reply.resize(at + rest, 0);
-        let k = self.link.recv(&mut reply[at..], deadline).map_err(comm)?;
-        reply.truncate(at + k);
-        if self.trace {
-            eprintln!("stepctl: {name} <- {}", hex(&reply));
-        }
+        reply.resize(at.saturating_add(rest), 0);
+        let k = match reply.get_mut(at..) {
+            Some(tail) => self.link.recv(tail, deadline).map_err(comm)?,
+            None => 0,
+        };
+        reply.truncate(at.saturating_add(k));
         if k < rest {
-            return Err(fail(&mut self.link, &reply, "short reply"));
+            if self.trace {
+                eprintln!("stepctl: {name} <- {}", hex(&reply));
+            }
+            return Err(self.fail(what, id, name, &reply, "short reply"));
         }
-        if !crc_ok(&reply) {
-            return Err(fail(&mut self.link, &reply, "bad CRC in the reply"));
+        Ok(reply)
+    }
+
+    /// A whole reply against the request: CRC, id, exception, and the byte
+    /// count or echo `expect` says.
+    fn check_reply(
+        &mut self,
+        id: u8,
+        fc: u8,
+        expect: &Expect,
+        what: String,
+        name: &str,
+        reply: &[u8],
+    ) -> Result<()> {
+        if !crc_ok(reply) {
+            return Err(self.fail(&what, id, name, reply, "bad CRC in the reply"));
         }
-        if reply[0] != id {
-            return Err(fail(&mut self.link, &reply, "a reply for another id"));
+        if reply.first() != Some(&id) {
+            return Err(self.fail(&what, id, name, reply, "a reply for another id"));
         }
-        if reply[1] == fc | 0x80 {
+        let byte = |i: usize| reply.get(i).copied().unwrap_or(0);
+        if byte(1) == fc | 0x80 {
             return Err(Error::Exception {
-                code: reply[2],
+                code: byte(2),
                 what,
                 reason: None,
             });
         }
         match expect {
-            Expect::Registers(count) if usize::from(reply[2]) != 2 * usize::from(count) => {
-                return Err(fail(&mut self.link, &reply, "a wrong register count"));
+            Expect::Registers(count)
+                if usize::from(byte(2)) != usize::from(*count).saturating_mul(2) =>
+            {
+                Err(self.fail(&what, id, name, reply, "a wrong register count"))
             }
-            Expect::Echo(echo) if reply[2..6] != echo => {
-                return Err(fail(&mut self.link, &reply, "a wrong echo"));
+            Expect::Echo(echo) if reply.get(2..6) != Some(&echo[..]) => {
+                Err(self.fail(&what, id, name, reply, "a wrong echo"))
             }
-            _ => {}
+            _ => Ok(()),
         }
-        Ok((request.to_vec(), reply))
     }
 
     pub fn read_registers(&mut self, id: u8, address: u16, count: u16) -> Result<Vec<u16>> {
