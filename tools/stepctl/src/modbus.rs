@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 
 use crc::{Crc, CRC_16_MODBUS};
 
-use crate::bus::{hex, Bus, RawReply};
+use crate::bus::{deadline, hex, Bus, RawReply};
 use crate::error::{Error, Result};
 
 static CRC16: Crc<u16> = Crc::<u16>::new(&CRC_16_MODBUS);
@@ -74,14 +74,15 @@ impl Link for TcpLink {
                 break;
             }
             self.stream.set_read_timeout(Some(left))?;
-            match self.stream.read(&mut buf[n..]) {
+            let Some(rest) = buf.get_mut(n..) else { break };
+            match self.stream.read(rest) {
                 Ok(0) => {
                     return Err(io::Error::new(
                         io::ErrorKind::UnexpectedEof,
                         "the box closed the connection",
                     ))
                 }
-                Ok(k) => n += k,
+                Ok(k) => n = n.saturating_add(k),
                 Err(e)
                     if matches!(
                         e.kind(),
@@ -99,7 +100,7 @@ impl Link for TcpLink {
 
     fn drain(&mut self) {
         let mut junk = [0u8; 256];
-        let until = Instant::now() + Duration::from_millis(20);
+        let until = deadline(Duration::from_millis(20));
         while let Ok(k) = self.recv(&mut junk, until) {
             if k < junk.len() {
                 break;
@@ -152,7 +153,10 @@ impl SerialLink {
                 Error::Comm(format!("cannot open serial port {path}: {e}{hint}"))
             })?;
         // 11-bit characters; 3.5 of them (at least 1.75 ms, the spec's floor).
-        let t35 = Duration::from_micros((38_500_000 / u64::from(baud.max(1))).max(1750));
+        let per_baud = 38_500_000_u64
+            .checked_div(u64::from(baud))
+            .unwrap_or(38_500_000);
+        let t35 = Duration::from_micros(per_baud.max(1750));
         Ok(SerialLink {
             port,
             path: path.to_string(),
@@ -162,12 +166,22 @@ impl SerialLink {
     }
 }
 
+impl std::fmt::Debug for SerialLink {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SerialLink")
+            .field("path", &self.path)
+            .field("t35", &self.t35)
+            .finish_non_exhaustive()
+    }
+}
+
 impl Link for SerialLink {
     fn send(&mut self, frame: &[u8]) -> io::Result<()> {
-        let quiet = self.last + self.t35;
-        let now = Instant::now();
-        if quiet > now {
-            std::thread::sleep(quiet - now);
+        let quiet = self.last.checked_add(self.t35).map_or(Duration::ZERO, |q| {
+            q.saturating_duration_since(Instant::now())
+        });
+        if !quiet.is_zero() {
+            std::thread::sleep(quiet);
         }
         let _ = self.port.clear(serialport::ClearBuffer::Input);
         self.port.write_all(frame)?;
@@ -184,10 +198,11 @@ impl Link for SerialLink {
                 break;
             }
             self.port.set_timeout(left)?;
-            match self.port.read(&mut buf[n..]) {
+            let Some(rest) = buf.get_mut(n..) else { break };
+            match self.port.read(rest) {
                 Ok(0) => break,
                 Ok(k) => {
-                    n += k;
+                    n = n.saturating_add(k);
                     self.last = Instant::now();
                 }
                 Err(e) if e.kind() == io::ErrorKind::TimedOut => break,
@@ -209,6 +224,7 @@ impl Link for SerialLink {
 }
 
 /// A Modbus RTU master on a [`Link`].
+#[derive(Debug)]
 pub struct Rtu<L: Link> {
     pub link: L,
     pub timeout: Duration,
@@ -224,8 +240,12 @@ pub fn with_crc(mut frame: Vec<u8>) -> Vec<u8> {
 }
 
 fn crc_ok(frame: &[u8]) -> bool {
-    match frame.len().checked_sub(2) {
-        Some(n) if n > 0 => CRC16.checksum(&frame[..n]).to_le_bytes() == frame[n..],
+    match frame
+        .len()
+        .checked_sub(2)
+        .and_then(|n| frame.split_at_checked(n))
+    {
+        Some((body, crc)) if !body.is_empty() => CRC16.checksum(body).to_le_bytes() == crc,
         _ => false,
     }
 }
@@ -248,8 +268,9 @@ impl<L: Link> Rtu<L> {
     }
 
     fn what(&self, id: u8, pdu: &[u8]) -> String {
-        let address = u16::from_be_bytes([pdu[1], pdu[2]]);
-        let fc = pdu[0];
+        let byte = |i: usize| pdu.get(i).copied().unwrap_or(0);
+        let address = u16::from_be_bytes([byte(1), byte(2)]);
+        let fc = byte(0);
         let verb = match fc {
             READ_HOLDING => "read",
             _ => "write",
@@ -308,9 +329,7 @@ impl<L: Link> Rtu<L> {
         what: &str,
         name: &str,
     ) -> Result<Vec<u8>> {
-        let deadline = Instant::now()
-            .checked_add(self.timeout)
-            .ok_or_else(|| Error::Usage(format!("timeout {:?} is too long", self.timeout)))?;
+        let deadline = deadline(self.timeout);
         let comm = |e: io::Error| Error::Comm(format!("{what}: {name}: {e}"));
         let mut reply = vec![0u8; 2];
         let n = self.link.recv(&mut reply, deadline).map_err(comm)?;
@@ -407,7 +426,7 @@ impl<L: Link> Rtu<L> {
 
     pub fn write_registers(&mut self, id: u8, address: u16, values: &[u16]) -> Result<()> {
         let pdu = write_pdu(address, values);
-        let echo = [pdu[1], pdu[2], pdu[3], pdu[4]];
+        let echo = echo_of(&pdu);
         self.transact(id, &pdu, Expect::Echo(echo)).map(|_| ())
     }
 }
@@ -416,11 +435,19 @@ impl<L: Link> Rtu<L> {
 fn registers_of(reply: &[u8]) -> Vec<u16> {
     let n = usize::from(reply.get(2).copied().unwrap_or(0));
     reply
-        .get(3..3 + n)
+        .get(3..n.saturating_add(3))
         .unwrap_or(&[])
         .chunks_exact(2)
-        .map(|w| u16::from_be_bytes([w[0], w[1]]))
+        .filter_map(|w| <[u8; 2]>::try_from(w).ok().map(u16::from_be_bytes))
         .collect()
+}
+
+/// The 4 bytes a write's reply echoes (address, value or quantity) of a
+/// write PDU.
+fn echo_of(pdu: &[u8]) -> [u8; 4] {
+    pdu.get(1..5)
+        .and_then(|e| <[u8; 4]>::try_from(e).ok())
+        .unwrap_or_default()
 }
 
 /// FC 0x06 for one register, FC 0x10 for more.
@@ -433,7 +460,8 @@ fn write_pdu(address: u16, values: &[u16]) -> Vec<u8> {
         }
         _ => {
             let [c, d] = (values.len() as u16).to_be_bytes();
-            let mut pdu = vec![WRITE_MULTIPLE, a, b, c, d, (2 * values.len()) as u8];
+            let bytes = values.len().saturating_mul(2) as u8;
+            let mut pdu = vec![WRITE_MULTIPLE, a, b, c, d, bytes];
             for v in values {
                 pdu.extend_from_slice(&v.to_be_bytes());
             }
@@ -486,7 +514,7 @@ impl<L: Link> Bus for Rtu<L> {
             })
         } else {
             let pdu = write_pdu(command, data);
-            let echo = [pdu[1], pdu[2], pdu[3], pdu[4]];
+            let echo = echo_of(&pdu);
             let request = with_crc([&[unit][..], &pdu].concat());
             let (request, reply) = self.exchange(unit, &request, &pdu, Expect::Echo(echo))?;
             Ok(RawReply {
@@ -505,7 +533,7 @@ pub mod fake {
     use super::*;
     use std::collections::VecDeque;
 
-    #[derive(Default)]
+    #[derive(Debug, Default)]
     pub struct FakeLink {
         pub script: VecDeque<(Vec<u8>, Vec<u8>)>,
         pending: Vec<u8>,

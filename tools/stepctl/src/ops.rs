@@ -4,7 +4,7 @@
 use bridge_logic::ext_space::{axis, block, diag, homing};
 use serde::Serialize;
 
-use crate::bus::{i32_of, u32_of, Bus};
+use crate::bus::{i32_of, u32_of, words_at, Bus};
 use crate::error::{Error, Result};
 
 /// PoStep60 registers (README "Modbus register map").
@@ -117,7 +117,7 @@ pub fn motion(bus: &mut dyn Bus, unit: u8) -> Result<Motion> {
     let r = bus.read(unit, AXIS_BLOCK, AXIS_BLOCK_LEN)?;
     let w = |i: usize| r.get(i).copied().unwrap_or(0);
     Ok(Motion {
-        speed: i32_of(&r[..2.min(r.len())]),
+        speed: i32_of(words_at(&r, 0, 2)),
         position: i32_of(r.get(2..4).unwrap_or(&[])),
         target: i32_of(r.get(4..6).unwrap_or(&[])),
         state: w(6),
@@ -203,7 +203,7 @@ pub fn box_info(bus: &mut dyn Bus, unit: u8) -> Result<BoxInfo> {
         hardware: format!("{}.{}", w(1) >> 8, w(1) & 0xFF),
         firmware: format!("{}.{}", w(2) >> 8, w(2) & 0xFF),
         axes: dv(0),
-        build_id: format!("{:08X}", u32_of(&d[4.min(d.len())..6.min(d.len())])),
+        build_id: format!("{:08X}", u32_of(words_at(&d, 4, 2))),
         reset_cause: match dv(1) {
             1 => "power-on",
             2 => "reset pin",

@@ -15,7 +15,7 @@ use crate::plot::{self, Sample};
 pub(super) fn watch(ctx: &mut Ctx, axes: &[u8], interval_ms: u64, count: u64) -> Result<Output> {
     let axes = ctx.axes(axes)?;
     let t0 = Instant::now();
-    let mut n = 0;
+    let mut n: u64 = 0;
     let clear = ctx.interactive && !ctx.json;
     let mut last: Vec<ops::AxisStatus>;
     loop {
@@ -37,7 +37,7 @@ pub(super) fn watch(ctx: &mut Ctx, axes: &[u8], interval_ms: u64, count: u64) ->
             );
         }
         last = rows;
-        n += 1;
+        n = n.saturating_add(1);
         if count != 0 && n >= count {
             break;
         }

@@ -51,6 +51,18 @@ pub struct Ctx<'a> {
     pub poll: Duration,
 }
 
+impl std::fmt::Debug for Ctx<'_> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Ctx")
+            .field("bus", &self.bus.name())
+            .field("first_id", &self.first_id)
+            .field("json", &self.json)
+            .field("interactive", &self.interactive)
+            .field("poll", &self.poll)
+            .finish()
+    }
+}
+
 impl Ctx<'_> {
     fn explain(&mut self, unit: u8, address: u16, e: Error) -> Error {
         ops::explain(self.bus, unit, address, e)
@@ -70,7 +82,7 @@ impl Ctx<'_> {
         }
         let n = ops::chain_length(self.bus, self.first_id)?;
         let first = u16::from(self.first_id);
-        Ok((first..first + n)
+        Ok((first..first.saturating_add(n))
             .filter_map(|u| u8::try_from(u).ok())
             .collect())
     }

@@ -7,7 +7,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use serde_json::json;
 
 use super::{list, Ctx, Output};
-use crate::bus::words_of;
+use crate::bus::{deadline, words_of};
 use crate::cli::{Limits, Wait};
 use crate::error::{Error, Result};
 use crate::ops::{self, ext, one, reg};
@@ -113,8 +113,8 @@ fn wait_arrival(
     } else {
         ProgressBar::hidden()
     };
-    let deadline = Instant::now() + Duration::from_secs_f64(timeout_s.max(0.0));
-    let mut resting_elsewhere = 0;
+    let deadline = deadline(seconds(timeout_s));
+    let mut resting_elsewhere: u32 = 0;
     loop {
         let m = ops::motion(ctx.bus, unit)?;
         bar.set_position(u64::from(m.position.abs_diff(from)).min(len));
@@ -135,7 +135,7 @@ fn wait_arrival(
         // Resting, not on the target, several polls in a row: something
         // stopped it (Stop, an end switch, another master's target).
         if m.settled() {
-            resting_elsewhere += 1;
+            resting_elsewhere = resting_elsewhere.saturating_add(1);
             if resting_elsewhere >= 5 {
                 bar.abandon();
                 return Err(Error::Fault(format!(
@@ -210,7 +210,7 @@ pub(super) fn home(ctx: &mut Ctx, unit: u8, wait: &Wait) -> Result<Output> {
             json!({ "axis": unit, "waited": false }),
         ));
     }
-    let deadline = Instant::now() + Duration::from_secs_f64(wait.timeout.max(0.0));
+    let deadline = deadline(seconds(wait.timeout));
     loop {
         let h = ctx.bus.read(unit, cmd, 3)?;
         match h.first().copied().unwrap_or(0) {
@@ -237,6 +237,12 @@ pub(super) fn home(ctx: &mut Ctx, unit: u8, wait: &Wait) -> Result<Output> {
         }
         ctx.sleep();
     }
+}
+
+/// `--timeout` in seconds as a span: negative or NaN is 0, too large for a
+/// `Duration` (or infinite) is the longest one.
+fn seconds(s: f64) -> Duration {
+    Duration::try_from_secs_f64(s.max(0.0)).unwrap_or(Duration::MAX)
 }
 
 #[cfg(test)]

@@ -109,7 +109,9 @@ pub(super) fn info(ctx: &mut Ctx) -> Result<Output> {
         i.build_id,
         i.axes,
         ctx.first_id,
-        u16::from(ctx.first_id) + i.axes.max(1) - 1,
+        u16::from(ctx.first_id)
+            .saturating_add(i.axes.max(1))
+            .saturating_sub(1),
         i.reset_cause,
         i.settings_source,
         i.uptime_s

@@ -7,7 +7,7 @@ use comfy_table::{presets, Table};
 use serde_json::{json, Value};
 
 use super::{table, Ctx, Output};
-use crate::bus::u32_of;
+use crate::bus::{deadline, u32_of, words_at};
 use crate::cli::SettingsCmd;
 use crate::error::{Error, Result};
 use crate::ops::{ext, reg};
@@ -68,7 +68,11 @@ fn read_all(ctx: &mut Ctx, axes: &[u8]) -> Result<SettingsFile> {
 
 fn show_table(f: &SettingsFile) -> String {
     let v = serde_json::to_value(f).unwrap_or(Value::Null);
-    let axes = v["axis"].as_array().cloned().unwrap_or_default();
+    let axes = v
+        .get("axis")
+        .and_then(Value::as_array)
+        .cloned()
+        .unwrap_or_default();
     let mut header = vec!["setting".to_string()];
     header.extend(axes.iter().map(|a| format!("axis {}", a["id"])));
     let mut t = Table::new();
@@ -188,7 +192,7 @@ fn save(ctx: &mut Ctx) -> Result<Output> {
     let unit = ctx.first_id;
     let counters = ext(block::DIAG, diag::SAVES);
     let before = ctx.bus.read(unit, counters, 4)?;
-    let deadline = Instant::now() + Duration::from_secs(15);
+    let deadline = deadline(Duration::from_secs(15));
     loop {
         match ctx.bus.write(unit, reg::WRITE_SETTINGS, &[0]) {
             Ok(()) => break,
@@ -202,7 +206,7 @@ fn save(ctx: &mut Ctx) -> Result<Output> {
     }
     loop {
         let now = ctx.bus.read(unit, counters, 4)?;
-        if u32_of(&now[2..4]) != u32_of(&before[2..4]) {
+        if u32_of(words_at(&now, 2, 2)) != u32_of(words_at(&before, 2, 2)) {
             return Err(Error::Exception {
                 code: 4,
                 what: format!("id {unit}: write settings"),
@@ -211,7 +215,7 @@ fn save(ctx: &mut Ctx) -> Result<Output> {
                 ),
             });
         }
-        if u32_of(&now[..2]) != u32_of(&before[..2]) {
+        if u32_of(words_at(&now, 0, 2)) != u32_of(words_at(&before, 0, 2)) {
             return Ok(Output::new(
                 "settings saved to the box's flash",
                 json!({ "saved": true }),

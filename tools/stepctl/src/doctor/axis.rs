@@ -185,7 +185,7 @@ pub fn judge_registers(a: &AxisReading) -> Check {
     if !differ.is_empty() {
         let shown: Vec<_> = differ.iter().take(3).cloned().collect();
         let more = if differ.len() > 3 {
-            format!(" (+{} more)", differ.len() - 3)
+            format!(" (+{} more)", differ.len().saturating_sub(3))
         } else {
             String::new()
         };
@@ -230,7 +230,7 @@ fn compare(a: &AxisReading, wanted: &[(Register, u32)], moving: bool) -> Compari
         let reg_name = reg.info().voltage_mode_name;
         match a.chip.iter().find(|(r, _)| r == reg).map(|(_, v)| v) {
             Some(Ok(v)) => {
-                out.compared += 1;
+                out.compared = out.compared.saturating_add(1);
                 if v & reg.mask() != want & reg.mask() {
                     out.differ.push(format!(
                         "{reg_name} reads 0x{v:X}, the bridge wrote 0x{want:X}"

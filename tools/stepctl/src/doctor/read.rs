@@ -8,7 +8,7 @@ use bridge_logic::ext_space::{block, configured, diag};
 use bridge_logic::powerstep::registers::Register;
 
 use super::{configured_registers, word, AxisReading, Loopback, Options, Reading, TickRate, CHUNK};
-use crate::bus::{u32_of, Bus};
+use crate::bus::{deadline, u32_of, Bus};
 use crate::error::Result;
 use crate::ops::ext;
 
@@ -16,9 +16,9 @@ fn read_block(bus: &mut dyn Bus, unit: u8, address: u16, len: u16) -> Result<Vec
     let mut out = Vec::with_capacity(usize::from(len));
     let mut at = 0;
     while at < len {
-        let n = CHUNK.min(len - at);
-        out.extend(bus.read(unit, address + at, n)?);
-        at += n;
+        let n = CHUNK.min(len.saturating_sub(at));
+        out.extend(bus.read(unit, address.saturating_add(at), n)?);
+        at = at.saturating_add(n);
     }
     Ok(out)
 }
@@ -28,7 +28,8 @@ fn ticks_now(bus: &mut dyn Bus, unit: u8) -> Result<(u32, Instant)> {
     let t0 = Instant::now();
     let r = bus.read(unit, ext(block::DIAG, diag::TICKS), 2)?;
     let t1 = Instant::now();
-    Ok((u32_of(&r), t0 + (t1 - t0) / 2))
+    let half = t1.duration_since(t0).checked_div(2).unwrap_or_default();
+    Ok((u32_of(&r), t0.checked_add(half).unwrap_or(t1)))
 }
 
 fn read_chip(bus: &mut dyn Bus, unit: u8, reg: Register) -> std::result::Result<u32, String> {
@@ -78,7 +79,10 @@ pub fn read(bus: &mut dyn Bus, opts: &Options) -> Reading {
     let start = ticks_now(bus, unit);
     let n = word(d, diag::CHAIN_LENGTH);
     for k in 0..n {
-        let Some(u) = u8::try_from(u16::from(unit) + k).ok() else {
+        let Some(u) = u16::from(unit)
+            .checked_add(k)
+            .and_then(|u| u8::try_from(u).ok())
+        else {
             break;
         };
         r.axes.push(read_axis(bus, u));
@@ -90,10 +94,10 @@ pub fn read(bus: &mut dyn Bus, opts: &Options) -> Reading {
         let rest = Duration::from_secs_f64(opts.seconds.max(0.0)).saturating_sub(at0.elapsed());
         std::thread::sleep(rest);
         if let Ok((t1, at1)) = ticks_now(bus, unit) {
-            if t1 >= t0 {
+            if let Some(ticks) = t1.checked_sub(t0) {
                 r.tick = Some(TickRate {
-                    ticks: t1 - t0,
-                    seconds: (at1 - at0).as_secs_f64(),
+                    ticks,
+                    seconds: at1.saturating_duration_since(at0).as_secs_f64(),
                 });
             }
         }
@@ -127,15 +131,18 @@ fn loopback(bus: &mut dyn Bus, unit: u8, axes: u16) -> Loopback {
 
 fn run_loopback(bus: &mut dyn Bus, unit: u8, axes: u16) -> Result<Loopback> {
     for k in 0..axes {
-        let Some(u) = u8::try_from(u16::from(unit) + k).ok() else {
+        let Some(u) = u16::from(unit)
+            .checked_add(k)
+            .and_then(|u| u8::try_from(u).ok())
+        else {
             break;
         };
-        let m = bus.read(u, io::MAPPING + 8 * k, 7)?;
+        let at = io::MAPPING.saturating_add(k.saturating_mul(8));
+        let m = bus.read(u, at, 7)?;
         if m.iter().any(|e| e & 0x8000 != 0) {
             return Ok(Loopback::Skipped(format!(
                 "the I/O extension drives the box panel (axis {u} has mapped inputs or lamps, \
-                 0x{:04X}): unmap them first",
-                io::MAPPING + 8 * k
+                 0x{at:04X}): unmap them first"
             )));
         }
     }
@@ -149,7 +156,7 @@ fn run_loopback(bus: &mut dyn Bus, unit: u8, axes: u16) -> Result<Loopback> {
     // transmit words starts the transfer at the next control tick.
     bus.read(unit, io::RX, 2)?;
     bus.write(unit, io::TX, &words(io::PATTERN))?;
-    let deadline = Instant::now() + Duration::from_secs(2);
+    let deadline = deadline(Duration::from_secs(2));
     let received = loop {
         let c = u32_of(&bus.read(unit, io::CONFIG, 2)?);
         if c & io::DONE != 0 {

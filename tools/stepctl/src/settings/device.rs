@@ -383,14 +383,14 @@ pub fn apply_watchdog(
         ),
     ];
     for (k, (bus_name, wt, nt, wa, na)) in rows.into_iter().enumerate() {
-        let at = base + 2 * k as u16;
+        let at = base.saturating_add((k as u16).saturating_mul(2));
         a.u16(&format!("watchdog.{bus_name}_timeout_ms"), *nt, *wt, at)?;
         if let Some(w) = wa {
             a.write(
                 &format!("watchdog.{bus_name}_action"),
                 show(na.clone()),
                 w.clone(),
-                at + 1,
+                at.saturating_add(1),
                 &[action_code(w).unwrap_or(1)],
             )?;
         }
