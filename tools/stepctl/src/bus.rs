@@ -1,6 +1,6 @@
 //! The one interface every command is written against: 16-bit registers in
-//! the box's Modbus address space (README "Modbus register map" and "The
-//! extension space"), whatever carries them.
+//! the box's Modbus address space (docs/modbus.md "Modbus register map" and
+//! docs/extension-space.md), whatever carries them.
 //!
 //! * `0x00nn` is PoStep60 command `nn` (FC 0x03 reads, 0x06/0x10 writes);
 //! * `0x01nn..` is the extension space (chip registers, I/O extension,

@@ -146,7 +146,7 @@ impl SerialLink {
             .open()
             .map_err(|e| {
                 let hint = if e.to_string().contains("ermission") {
-                    " (add yourself to the `dialout` group: README, stepctl, serial-port permissions)"
+                    " (add yourself to the `dialout` group: docs/stepctl.md, serial port permissions)"
                 } else {
                     ""
                 };
@@ -621,7 +621,7 @@ mod tests {
     use super::fake::*;
     use super::*;
 
-    // Frames: README "Modbus register map"; CRCs from the Modbus spec's
+    // Frames: docs/modbus.md "Modbus register map"; CRCs from the Modbus spec's
     // CRC-16 (poly 0xA001, init 0xFFFF, low byte first) computed outside
     // stepctl.
 
@@ -642,7 +642,7 @@ mod tests {
 
     #[test]
     fn a_two_register_write_uses_fc_10() {
-        // Set position -1000 (README: R1 high word, R2 low word).
+        // Set position -1000 (docs/modbus.md: R1 high word, R2 low word).
         let mut m = rtu(&[(
             "01 10 00 50 00 02 04 FF FF FC 18 B7 BD",
             "01 10 00 50 00 02 41 D9",

@@ -7,7 +7,7 @@ use serde::Serialize;
 use crate::bus::{i32_of, u32_of, words_at, Bus};
 use crate::error::{Error, Result};
 
-/// PoStep60 registers (README "Modbus register map").
+/// PoStep60 registers (docs/modbus.md "Modbus register map").
 pub mod reg {
     pub const RUN_SLEEP: u16 = 0x03;
     pub const SET_MODE: u16 = 0x05;

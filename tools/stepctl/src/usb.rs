@@ -1,4 +1,4 @@
-//! The box over USB HID (README "PoStep60 over USB HID"): 64-byte reports,
+//! The box over USB HID (docs/usb.md): 64-byte reports,
 //! byte 0 the report id 2, `OutDATA[1]` the command, `OutDATA[62]` the axis;
 //! replies carry the axis in `InDATA[13]` and the outcome in `InDATA[14]`.
 //!
@@ -72,7 +72,7 @@ pub fn not_found() -> Error {
     Error::Comm(format!(
         "USB: no stepbridge/PoStep60 HID device (VID 0x{VID:04X}, PID 0x{PID:04X}) found: is the box \
          plugged in and running a firmware with USB HID (the QEMU image has no USB: use --tcp), \
-         and may you open /dev/hidraw* (README: udev rule)?"
+         and may you open /dev/hidraw* (docs/usb.md: udev rule)?"
     ))
 }
 
@@ -127,7 +127,7 @@ impl HidapiDevice {
             .map_err(|_| Error::Comm("USB: a device path with a NUL byte".into()))?;
         let dev = api.open_path(&path).map_err(|e| {
             Error::Comm(format!(
-                "USB: cannot open {} ({e}): on Linux install the udev rule of the README",
+                "USB: cannot open {} ({e}): on Linux install the udev rule of docs/usb.md",
                 f.path
             ))
         })?;
@@ -387,7 +387,7 @@ impl<H: Hid> UsbBus<H> {
 
     fn unsupported(address: u16) -> Error {
         Error::Usage(format!(
-            "register 0x{address:04X} has no USB command (README: stepctl over USB); use Modbus (--tcp/--port)"
+            "register 0x{address:04X} has no USB command (docs/stepctl.md: USB); use Modbus (--tcp/--port)"
         ))
     }
 }
@@ -639,7 +639,7 @@ mod tests {
     use super::fake::*;
     use super::*;
 
-    // Layouts: README "PoStep60 over USB HID" and docs/DECISIONS.md "USB
+    // Layouts: docs/usb.md and docs/DECISIONS.md "USB
     // HID" (0x01: supply [8..9] and temperature [44..45] big-endian, status
     // [46]; 0x81: packet id 0xBA, response 0x81, DRV8711 image [40..55] LSB
     // first, mode [62]; 0x88: 0xCC / 0x87, LE32 limits at [24], [28], [32]).

@@ -1,4 +1,4 @@
-//! `stepctl doctor`: the bring-up checks (README "stepctl doctor",
+//! `stepctl doctor`: the bring-up checks (docs/stepctl.md "stepctl doctor",
 //! docs/bring-up.md). [`read`] asks the box everything once (diagnostics,
 //! each axis's state, chip STATUS, what the bridge configured on each chip
 //! and what the chip holds, the tick counter twice, the I/O extension's

@@ -1,7 +1,7 @@
 //! Every persisted setting of every axis, with units: what `settings show`
 //! prints, `settings export` writes as TOML, `settings import` and
 //! `settings set` apply. Units are in the key names; a header in the file
-//! lists them (PoStep60 manual §8.3 / §9.3 and the README's extension space).
+//! lists them (PoStep60 manual §8.3 / §9.3 and docs/extension-space.md).
 //!
 //! Reached over Modbus (and USB, except the requested speed):
 //! driver mode, step mode, max speed / acceleration / deceleration,
@@ -29,7 +29,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::error::{Error, Result};
 
-/// The board's current limit (manual 6.1; README "Currents"), mA.
+/// The board's current limit (manual 6.1; docs/PRODUCT.md "Currents"), mA.
 pub const CURRENT_LIMIT_MA: u32 = 6000;
 pub const FORMAT: u32 = 1;
 
@@ -448,7 +448,7 @@ mod tests {
             assert!(milliamps(word) <= ma);
             assert_eq!(current_word(milliamps(word)), word, "{ma} mA is stable");
         }
-        // README: BYTE1 = Ai, BYTE0 = Tq; 0x037B = Tq 123, Ai 3.
+        // docs/modbus.md: BYTE1 = Ai, BYTE0 = Tq; 0x037B = Tq 123, Ai 3.
         assert_eq!(current_word(999), 0x037B);
     }
 
