@@ -173,21 +173,7 @@ pub fn main(args: &[String]) -> Result {
     check_flash_path(&flash_s)?;
 
     // --- QEMU ---
-    let modbus = if test {
-        env_or("QEMU_MODBUS", "null")
-    } else {
-        env_or("QEMU_MODBUS", DEFAULT_MODBUS)
-    };
-    let console = if test {
-        "null".to_owned()
-    } else {
-        env_or("QEMU_CONSOLE", "null")
-    };
-    let mut q = Command::new(&qemu.bin);
-    q.args(qemu_args(&elf, &flash_s, &console, &modbus));
-    if let Some(d) = &qemu.data_dir {
-        q.arg("-L").arg(d);
-    }
+    let (mut q, modbus) = qemu_command(&qemu, &elf, &flash_s, test);
     announce(test, &qemu, &elf, &flash, &root, &modbus);
     let Some(decoder) = decoder else {
         use std::os::unix::process::CommandExt;
@@ -216,10 +202,16 @@ pub fn main(args: &[String]) -> Result {
             .wait()
             .map_err(|e| format!("waiting for defmt-print: {e}"))?,
     );
-    if test {
-        let name = test_name(&elf);
-        drop(test_dir);
-        return match verdict(&name, qemu_status, dec_status, &log) {
+    let test_name = test.then(|| test_name(&elf));
+    drop(test_dir);
+    outcome(test_name.as_deref(), qemu_status, dec_status, &log)
+}
+
+/// A test's verdict (from its log), or QEMU's status; the decoder's only if
+/// QEMU's is 0.
+fn outcome(test: Option<&str>, qemu_status: i32, dec_status: i32, log: &str) -> Result {
+    if let Some(name) = test {
+        return match verdict(name, qemu_status, dec_status, log) {
             Ok(m) => {
                 say(P, m);
                 Ok(())
@@ -230,12 +222,32 @@ pub fn main(args: &[String]) -> Result {
             }
         };
     }
-    // QEMU's status; the decoder's only if QEMU's is 0.
     match (qemu_status, dec_status) {
         (0, 0) => Ok(()),
         (0, d) => Err(Error::Exit(d)),
         (q, _) => Err(Error::Exit(q)),
     }
+}
+
+/// The QEMU command line for `elf` and where its Modbus goes (a test:
+/// nowhere, and no console).
+fn qemu_command(qemu: &setup::Qemu, elf: &Path, flash: &str, test: bool) -> (Command, String) {
+    let modbus = if test {
+        env_or("QEMU_MODBUS", "null")
+    } else {
+        env_or("QEMU_MODBUS", DEFAULT_MODBUS)
+    };
+    let console = if test {
+        "null".to_owned()
+    } else {
+        env_or("QEMU_CONSOLE", "null")
+    };
+    let mut q = Command::new(&qemu.bin);
+    q.args(qemu_args(elf, flash, &console, &modbus));
+    if let Some(d) = &qemu.data_dir {
+        q.arg("-L").arg(d);
+    }
+    (q, modbus)
 }
 
 /// The image's settings flash file: `QEMU_FLASH` (relative to the current
