@@ -96,46 +96,9 @@ pub fn run(data: &[u8]) {
     let mut b = Bytes(data.iter());
     while let Some(&tag) = b.0.next() {
         match tag & 7 {
-            0 => {
-                let a = b.addr();
-                let mut out = [0u16; 24];
-                let n = usize::from(b.u8() % 24);
-                let before = io;
-                let r = io.read(a, out.get_mut(..n).unwrap_or(&mut []));
-                if r.is_err() {
-                    assert_eq!(io, before, "a refused read changes nothing");
-                }
-            }
-            1 => {
-                let a = b.addr();
-                let n = usize::from(b.u8() % 24);
-                let mut d = [0u16; 24];
-                for w in d.iter_mut().take(n) {
-                    *w = b.u16();
-                }
-                let before = io;
-                if io.write(a, d.get(..n).unwrap_or(&[])).is_err() {
-                    assert_eq!(io, before, "a refused write changes nothing");
-                }
-            }
-            2 => {
-                let lamps = b.u8();
-                let outs = [AxisOutputs {
-                    moving: lamps & 1 != 0,
-                    fault: lamps & 2 != 0,
-                    idle: lamps & 4 != 0,
-                }; 8];
-                let was_running = io.is_running();
-                match io.tick(&outs) {
-                    Some(Action::Transfer(p)) => {
-                        assert!(!was_running, "a transfer planned while one runs");
-                        check_plan(&io, &p);
-                        running = Some(p);
-                    }
-                    Some(Action::Disable) => assert!(!was_running && !io.enabled()),
-                    None => {}
-                }
-            }
+            0 => read(&mut io, &mut b),
+            1 => write(&mut io, &mut b),
+            2 => tick(&mut io, &mut b, &mut running),
             3 => {
                 if let Some(p) = running.take() {
                     let rx = crate::ioext_wire::transfer(&mut chain, &p);
@@ -154,20 +117,73 @@ pub fn run(data: &[u8]) {
                 let i = usize::from(b.u8());
                 chain.set_rx_bit(i, b.u8() & 1 != 0);
             }
-            6 => {
-                // A valid configuration and enable, to reach deep states fast.
-                let v = u32::from_be_bytes([b.u8(), b.u8(), b.u8(), b.u8()]) | cfg::SPI_MODE;
-                let _ = io.write(addr::CONFIG, &[(v >> 16) as u16, v as u16]);
-                let _ = io.write(addr::IO_OPTIONS, &[0, u16::from(b.u8() & 1)]);
-            }
-            _ => {
-                let s = io.settings();
-                let mut img = [0u8; IMAGE_LEN];
-                s.encode(&mut img);
-                assert_eq!(IoSettings::decode(&img), Ok(s));
-                let _ = IoSettings::decode(data);
-            }
+            6 => configure(&mut io, &mut b),
+            _ => persist(&io, data),
         }
         check_state(&mut io, last_bits);
     }
+}
+
+/// Op 0: read up to 23 registers anywhere; refused, it changes nothing.
+fn read(io: &mut IoExtension, b: &mut Bytes) {
+    let a = b.addr();
+    let mut out = [0u16; 24];
+    let n = usize::from(b.u8() % 24);
+    let before = *io;
+    let r = io.read(a, out.get_mut(..n).unwrap_or(&mut []));
+    if r.is_err() {
+        assert_eq!(*io, before, "a refused read changes nothing");
+    }
+}
+
+/// Op 1: write up to 23 registers anywhere; refused, it changes nothing.
+fn write(io: &mut IoExtension, b: &mut Bytes) {
+    let a = b.addr();
+    let n = usize::from(b.u8() % 24);
+    let mut d = [0u16; 24];
+    for w in d.iter_mut().take(n) {
+        *w = b.u16();
+    }
+    let before = *io;
+    if io.write(a, d.get(..n).unwrap_or(&[])).is_err() {
+        assert_eq!(*io, before, "a refused write changes nothing");
+    }
+}
+
+/// Op 2: a control tick with the axes' lamps from one byte; a planned
+/// transfer is checked and becomes the running one.
+fn tick(io: &mut IoExtension, b: &mut Bytes, running: &mut Option<TransferPlan>) {
+    let lamps = b.u8();
+    let outs = [AxisOutputs {
+        moving: lamps & 1 != 0,
+        fault: lamps & 2 != 0,
+        idle: lamps & 4 != 0,
+    }; 8];
+    let was_running = io.is_running();
+    match io.tick(&outs) {
+        Some(Action::Transfer(p)) => {
+            assert!(!was_running, "a transfer planned while one runs");
+            check_plan(io, &p);
+            *running = Some(p);
+        }
+        Some(Action::Disable) => assert!(!was_running && !io.enabled()),
+        None => {}
+    }
+}
+
+/// Op 6: a valid configuration and enable, to reach deep states fast.
+fn configure(io: &mut IoExtension, b: &mut Bytes) {
+    let v = u32::from_be_bytes([b.u8(), b.u8(), b.u8(), b.u8()]) | cfg::SPI_MODE;
+    let _ = io.write(addr::CONFIG, &[(v >> 16) as u16, v as u16]);
+    let _ = io.write(addr::IO_OPTIONS, &[0, u16::from(b.u8() & 1)]);
+}
+
+/// Op 7: the persisted settings round-trip through their image; the input
+/// itself decodes to an image or an error, never a panic.
+fn persist(io: &IoExtension, data: &[u8]) {
+    let s = io.settings();
+    let mut img = [0u8; IMAGE_LEN];
+    s.encode(&mut img);
+    assert_eq!(IoSettings::decode(&img), Ok(s));
+    let _ = IoSettings::decode(data);
 }

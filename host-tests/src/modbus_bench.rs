@@ -550,37 +550,51 @@ fn checked_poll(
         (body, ours)
     };
     if !log.is_empty() {
-        let body = body
-            .as_ref()
-            .expect("a request from a frame that is not intact");
-        let (id, cmd) = write_command(body).expect("a request from a frame that is no write");
-        assert_eq!(Some(id), ours, "a request from a frame for another id");
-        for (axis, req) in &log {
-            assert_eq!(
-                command_of(req),
-                Some(cmd),
-                "{req:?} from command {cmd:#04x}"
-            );
-            assert!(*axis < 2);
-            *motion |= may_move(req);
-        }
-        report.requests += log.len() as u32;
+        check_requests(&log, body.as_deref(), ours, report, motion);
     }
     if let Some(resp) = resp {
-        let body = body
-            .as_ref()
-            .expect("an answer to a frame that is not intact");
-        let id = ours.expect("an answer to a frame for another id");
-        assert_ne!(id, 0, "an answer to a broadcast");
-        assert!(crc_ok(&resp), "response CRC");
-        assert_eq!(resp[0], id);
-        assert!(resp[1] == body[1] || resp[1] == body[1] | 0x80);
-        if resp[1] & 0x80 != 0 {
-            assert_eq!(resp.len(), 5);
-            assert!((1..=4).contains(&resp[2]));
-        }
-        report.responses += 1;
+        check_response(&resp, body.as_deref(), ours, report);
     }
+}
+
+/// The requests a frame made of the bridge: from an intact write frame for
+/// one of our ids, each of that command, on axis 0 or 1.
+fn check_requests(
+    log: &[(usize, Request)],
+    body: Option<&[u8]>,
+    ours: Option<u8>,
+    report: &mut StreamReport,
+    motion: &mut bool,
+) {
+    let body = body.expect("a request from a frame that is not intact");
+    let (id, cmd) = write_command(body).expect("a request from a frame that is no write");
+    assert_eq!(Some(id), ours, "a request from a frame for another id");
+    for (axis, req) in log {
+        assert_eq!(
+            command_of(req),
+            Some(cmd),
+            "{req:?} from command {cmd:#04x}"
+        );
+        assert!(*axis < 2);
+        *motion |= may_move(req);
+    }
+    report.requests += log.len() as u32;
+}
+
+/// An answer: to an intact frame for one of our ids (never a broadcast),
+/// CRC right, same function or its exception (codes 1..4, 5 bytes).
+fn check_response(resp: &[u8], body: Option<&[u8]>, ours: Option<u8>, report: &mut StreamReport) {
+    let body = body.expect("an answer to a frame that is not intact");
+    let id = ours.expect("an answer to a frame for another id");
+    assert_ne!(id, 0, "an answer to a broadcast");
+    assert!(crc_ok(resp), "response CRC");
+    assert_eq!(resp[0], id);
+    assert!(resp[1] == body[1] || resp[1] == body[1] | 0x80);
+    if resp[1] & 0x80 != 0 {
+        assert_eq!(resp.len(), 5);
+        assert!((1..=4).contains(&resp[2]));
+    }
+    report.responses += 1;
 }
 
 /// Give every would-be frame of ≥ 4 bytes a correct CRC.

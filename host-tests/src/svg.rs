@@ -59,71 +59,107 @@ pub fn render(title: &str, panels: &[Panel]) -> String {
     for (i, panel) in panels.iter().enumerate() {
         let top = MT + i as f64 * (PANEL_H + MB);
         let (x0, x1, y0, y1) = bounds(panel);
-        let pw = W - ML - MR;
-        let px = |x: f64| ML + (x - x0) / (x1 - x0) * pw;
-        let py = |y: f64| top + PANEL_H - (y - y0) / (y1 - y0) * PANEL_H;
-        let _ = writeln!(
-            s,
-            r##"<rect x="{ML}" y="{top}" width="{pw}" height="{PANEL_H}" fill="none" stroke="#888"/>"##
-        );
-        for k in 0..=5 {
-            let yv = y0 + (y1 - y0) * k as f64 / 5.0;
-            let xv = x0 + (x1 - x0) * k as f64 / 5.0;
-            let _ = writeln!(
-                s,
-                r##"<line x1="{ML}" x2="{}" y1="{y}" y2="{y}" stroke="#eee"/><text x="{}" y="{}" text-anchor="end">{yv:.0}</text>"##,
-                ML + pw,
-                ML - 4.0,
-                py(yv) + 4.0,
-                y = py(yv)
-            );
-            let _ = writeln!(
-                s,
-                r#"<text x="{}" y="{}" text-anchor="middle">{xv:.2} s</text>"#,
-                px(xv),
-                top + PANEL_H + 15.0
-            );
-        }
-        let _ = writeln!(
-            s,
-            r#"<text x="14" y="{}" transform="rotate(-90 14 {})" text-anchor="middle">{}</text>"#,
-            top + PANEL_H / 2.0,
-            top + PANEL_H / 2.0,
-            panel.y_label
-        );
-        let _ = writeln!(
-            s,
-            r#"<text x="{}" y="{}">{}</text>"#,
-            ML + 6.0,
-            top + 14.0,
-            panel.title
-        );
-        for (j, series) in panel.series.iter().enumerate() {
-            let mut d = String::new();
-            for (k, &(x, y)) in series.points.iter().enumerate() {
-                let _ = write!(
-                    d,
-                    "{}{:.1},{:.1} ",
-                    if k == 0 { "M" } else { "L" },
-                    px(x),
-                    py(y)
-                );
-            }
-            let _ = writeln!(
-                s,
-                r#"<path d="{d}" fill="none" stroke="{}" stroke-width="1.5"/>"#,
-                series.color
-            );
-            let _ = writeln!(
-                s,
-                r#"<text x="{}" y="{}" fill="{}">{}</text>"#,
-                ML + pw - 200.0,
-                top + 16.0 + 14.0 * j as f64,
-                series.color,
-                series.name
-            );
-        }
+        let f = Frame {
+            top,
+            pw: W - ML - MR,
+            x0,
+            x1,
+            y0,
+            y1,
+        };
+        axes(&mut s, &f, panel);
+        lines(&mut s, &f, panel);
     }
     s.push_str("</svg>\n");
     s
+}
+
+/// Where a panel is drawn: its top, plot width and data bounds.
+struct Frame {
+    top: f64,
+    pw: f64,
+    x0: f64,
+    x1: f64,
+    y0: f64,
+    y1: f64,
+}
+
+impl Frame {
+    fn px(&self, x: f64) -> f64 {
+        ML + (x - self.x0) / (self.x1 - self.x0) * self.pw
+    }
+
+    fn py(&self, y: f64) -> f64 {
+        self.top + PANEL_H - (y - self.y0) / (self.y1 - self.y0) * PANEL_H
+    }
+}
+
+/// A panel's frame, grid with its tick labels, y label and title.
+fn axes(s: &mut String, f: &Frame, panel: &Panel) {
+    let (top, pw) = (f.top, f.pw);
+    let _ = writeln!(
+        s,
+        r##"<rect x="{ML}" y="{top}" width="{pw}" height="{PANEL_H}" fill="none" stroke="#888"/>"##
+    );
+    for k in 0..=5 {
+        let yv = f.y0 + (f.y1 - f.y0) * k as f64 / 5.0;
+        let xv = f.x0 + (f.x1 - f.x0) * k as f64 / 5.0;
+        let _ = writeln!(
+            s,
+            r##"<line x1="{ML}" x2="{}" y1="{y}" y2="{y}" stroke="#eee"/><text x="{}" y="{}" text-anchor="end">{yv:.0}</text>"##,
+            ML + pw,
+            ML - 4.0,
+            f.py(yv) + 4.0,
+            y = f.py(yv)
+        );
+        let _ = writeln!(
+            s,
+            r#"<text x="{}" y="{}" text-anchor="middle">{xv:.2} s</text>"#,
+            f.px(xv),
+            top + PANEL_H + 15.0
+        );
+    }
+    let _ = writeln!(
+        s,
+        r#"<text x="14" y="{}" transform="rotate(-90 14 {})" text-anchor="middle">{}</text>"#,
+        top + PANEL_H / 2.0,
+        top + PANEL_H / 2.0,
+        panel.y_label
+    );
+    let _ = writeln!(
+        s,
+        r#"<text x="{}" y="{}">{}</text>"#,
+        ML + 6.0,
+        top + 14.0,
+        panel.title
+    );
+}
+
+/// Each series as a path, and its name in the legend.
+fn lines(s: &mut String, f: &Frame, panel: &Panel) {
+    for (j, series) in panel.series.iter().enumerate() {
+        let mut d = String::new();
+        for (k, &(x, y)) in series.points.iter().enumerate() {
+            let _ = write!(
+                d,
+                "{}{:.1},{:.1} ",
+                if k == 0 { "M" } else { "L" },
+                f.px(x),
+                f.py(y)
+            );
+        }
+        let _ = writeln!(
+            s,
+            r#"<path d="{d}" fill="none" stroke="{}" stroke-width="1.5"/>"#,
+            series.color
+        );
+        let _ = writeln!(
+            s,
+            r#"<text x="{}" y="{}" fill="{}">{}</text>"#,
+            ML + f.pw - 200.0,
+            f.top + 16.0 + 14.0 * j as f64,
+            series.color,
+            series.name
+        );
+    }
 }

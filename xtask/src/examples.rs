@@ -233,71 +233,11 @@ pub fn main(_args: &[String]) -> Result {
     if examples.iter().any(|e| e.code.contains("stepctl")) {
         util::run(util::cargo().args(["build", "-q", "-p", "stepctl"]))?;
     }
-    let bin = util::target_dir().join("debug");
-    let path = match std::env::var_os("PATH") {
-        Some(p) => {
-            let mut v = vec![bin];
-            v.extend(std::env::split_paths(&p));
-            std::env::join_paths(v).map_err(|e| format!("PATH: {e}"))?
-        }
-        None => bin.into_os_string(),
-    };
+    let path = search_path()?;
     let tmp = TempDir::new("stepbridge-readme")?;
     for (n, ex) in examples.iter().enumerate() {
         let dir = tmp.path().join(format!("example-{}", n + 1));
-        std::fs::create_dir_all(&dir).map_err(|e| format!("{}: {e}", dir.display()))?;
-        say(
-            P,
-            format!(
-                "README.md:{}: {} example{}",
-                ex.line,
-                ex.lang,
-                if ex.against_qemu {
-                    " against cargo qemu"
-                } else {
-                    ""
-                }
-            ),
-        );
-        let qemu = if ex.against_qemu {
-            Some(Booted::start(&dir)?)
-        } else {
-            None
-        };
-        let (file, mut c) = match ex.lang.as_str() {
-            "python" => ("example.py", Command::new("python3")),
-            _ => {
-                let mut c = Command::new("bash");
-                c.arg("-e");
-                ("example.sh", c)
-            }
-        };
-        let script = dir.join(file);
-        std::fs::write(&script, runnable(ex)).map_err(|e| format!("{}: {e}", script.display()))?;
-        let t = Instant::now();
-        let out = util::capture(c.arg(&script).current_dir(&dir).env("PATH", &path))?;
-        drop(qemu);
-        let stdout = String::from_utf8_lossy(&out.stdout);
-        let stderr = String::from_utf8_lossy(&out.stderr);
-        print!("{stdout}");
-        eprint!("{stderr}");
-        if !out.status.success() {
-            bail!(
-                "README.md:{}: the {} example failed (exit status {})",
-                ex.line,
-                ex.lang,
-                util::code(out.status)
-            );
-        }
-        if let Some(p) = &ex.prints {
-            if !stdout.contains(p.as_str()) {
-                bail!("README.md:{}: the example did not print {p}", ex.line);
-            }
-        }
-        say(
-            P,
-            format!("README.md:{}: passed in {} s", ex.line, util::secs(t)),
-        );
+        run_example(ex, &dir, &path)?;
     }
     say(
         P,
@@ -306,6 +246,78 @@ pub fn main(_args: &[String]) -> Result {
             examples.len(),
             util::secs(t0)
         ),
+    );
+    Ok(())
+}
+
+/// PATH with the workspace's target/debug first (the stepctl just built).
+fn search_path() -> Result<std::ffi::OsString> {
+    let bin = util::target_dir().join("debug");
+    Ok(match std::env::var_os("PATH") {
+        Some(p) => {
+            let mut v = vec![bin];
+            v.extend(std::env::split_paths(&p));
+            std::env::join_paths(v).map_err(|e| format!("PATH: {e}"))?
+        }
+        None => bin.into_os_string(),
+    })
+}
+
+/// One example in its own directory `dir` (with `cargo qemu` running when it
+/// is against it): it must exit 0 and print what it says it prints.
+fn run_example(ex: &Example, dir: &Path, path: &std::ffi::OsStr) -> Result {
+    std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+    say(
+        P,
+        format!(
+            "README.md:{}: {} example{}",
+            ex.line,
+            ex.lang,
+            if ex.against_qemu {
+                " against cargo qemu"
+            } else {
+                ""
+            }
+        ),
+    );
+    let qemu = if ex.against_qemu {
+        Some(Booted::start(dir)?)
+    } else {
+        None
+    };
+    let (file, mut c) = match ex.lang.as_str() {
+        "python" => ("example.py", Command::new("python3")),
+        _ => {
+            let mut c = Command::new("bash");
+            c.arg("-e");
+            ("example.sh", c)
+        }
+    };
+    let script = dir.join(file);
+    std::fs::write(&script, runnable(ex)).map_err(|e| format!("{}: {e}", script.display()))?;
+    let t = Instant::now();
+    let out = util::capture(c.arg(&script).current_dir(dir).env("PATH", path))?;
+    drop(qemu);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    print!("{stdout}");
+    eprint!("{stderr}");
+    if !out.status.success() {
+        bail!(
+            "README.md:{}: the {} example failed (exit status {})",
+            ex.line,
+            ex.lang,
+            util::code(out.status)
+        );
+    }
+    if let Some(p) = &ex.prints {
+        if !stdout.contains(p.as_str()) {
+            bail!("README.md:{}: the example did not print {p}", ex.line);
+        }
+    }
+    say(
+        P,
+        format!("README.md:{}: passed in {} s", ex.line, util::secs(t)),
     );
     Ok(())
 }

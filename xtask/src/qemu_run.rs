@@ -167,69 +167,14 @@ pub fn main(args: &[String]) -> Result {
     };
     let flash: PathBuf = match &test_dir {
         Some(d) => d.path().join("flash.bin"),
-        None => {
-            let f = std::env::var_os("QEMU_FLASH")
-                .filter(|v| !v.is_empty())
-                .map(PathBuf::from)
-                .unwrap_or_else(|| util::target_dir().join("qemu-flash.bin"));
-            let f = if f.is_absolute() {
-                f
-            } else {
-                std::env::current_dir()
-                    .map_err(|e| format!("no current directory: {e}"))?
-                    .join(f)
-            };
-            if let Some(d) = f.parent() {
-                std::fs::create_dir_all(d)
-                    .map_err(|e| format!("cannot create {}: {e}", d.display()))?;
-            }
-            if flag("QEMU_FRESH") {
-                let _ = std::fs::remove_file(&f);
-            }
-            f
-        }
+        None => user_flash()?,
     };
     let flash_s = flash.display().to_string();
     check_flash_path(&flash_s)?;
 
     // --- QEMU ---
-    let modbus = if test {
-        env_or("QEMU_MODBUS", "null")
-    } else {
-        env_or("QEMU_MODBUS", DEFAULT_MODBUS)
-    };
-    let console = if test {
-        "null".to_owned()
-    } else {
-        env_or("QEMU_CONSOLE", "null")
-    };
-    let mut q = Command::new(&qemu.bin);
-    q.args(qemu_args(&elf, &flash_s, &console, &modbus));
-    if let Some(d) = &qemu.data_dir {
-        q.arg("-L").arg(d);
-    }
-    if test {
-        say(
-            P,
-            format!(
-                "QEMU {}, test {}",
-                qemu.version,
-                elf.file_name().unwrap_or_default().to_string_lossy()
-            ),
-        );
-    } else {
-        let shown = flash
-            .strip_prefix(&root)
-            .map(|p| p.display().to_string())
-            .unwrap_or_else(|_| flash_s.clone());
-        say(
-            P,
-            format!(
-                "QEMU {}, Modbus on {modbus}, settings flash {shown} (QEMU_FRESH=1: factory-fresh)",
-                qemu.version
-            ),
-        );
-    }
+    let (mut q, modbus) = qemu_command(&qemu, &elf, &flash_s, test);
+    announce(test, &qemu, &elf, &flash, &root, &modbus);
     let Some(decoder) = decoder else {
         use std::os::unix::process::CommandExt;
         let e = q.exec();
@@ -242,15 +187,138 @@ pub fn main(args: &[String]) -> Result {
         .spawn()
         .map_err(|e| format!("cannot run {}: {e}", qemu.bin.display()))?;
     let qemu_out = qemu_child.stdout.take().ok_or("no QEMU stdout")?;
+    let (mut dec_child, copier) = spawn_decoder(&decoder, &elf, test, &modbus, qemu_out)?;
+    let log = tee_log(&mut dec_child);
+    let qemu_status = util::code(
+        qemu_child
+            .wait()
+            .map_err(|e| format!("waiting for QEMU: {e}"))?,
+    );
+    if let Some(c) = copier {
+        let _ = c.join();
+    }
+    let dec_status = util::code(
+        dec_child
+            .wait()
+            .map_err(|e| format!("waiting for defmt-print: {e}"))?,
+    );
+    let test_name = test.then(|| test_name(&elf));
+    drop(test_dir);
+    outcome(test_name.as_deref(), qemu_status, dec_status, &log)
+}
+
+/// A test's verdict (from its log), or QEMU's status; the decoder's only if
+/// QEMU's is 0.
+fn outcome(test: Option<&str>, qemu_status: i32, dec_status: i32, log: &str) -> Result {
+    if let Some(name) = test {
+        return match verdict(name, qemu_status, dec_status, log) {
+            Ok(m) => {
+                say(P, m);
+                Ok(())
+            }
+            Err(m) => {
+                say(P, m);
+                Err(Error::Exit(1))
+            }
+        };
+    }
+    match (qemu_status, dec_status) {
+        (0, 0) => Ok(()),
+        (0, d) => Err(Error::Exit(d)),
+        (q, _) => Err(Error::Exit(q)),
+    }
+}
+
+/// The QEMU command line for `elf` and where its Modbus goes (a test:
+/// nowhere, and no console).
+fn qemu_command(qemu: &setup::Qemu, elf: &Path, flash: &str, test: bool) -> (Command, String) {
+    let modbus = if test {
+        env_or("QEMU_MODBUS", "null")
+    } else {
+        env_or("QEMU_MODBUS", DEFAULT_MODBUS)
+    };
+    let console = if test {
+        "null".to_owned()
+    } else {
+        env_or("QEMU_CONSOLE", "null")
+    };
+    let mut q = Command::new(&qemu.bin);
+    q.args(qemu_args(elf, flash, &console, &modbus));
+    if let Some(d) = &qemu.data_dir {
+        q.arg("-L").arg(d);
+    }
+    (q, modbus)
+}
+
+/// The image's settings flash file: `QEMU_FLASH` (relative to the current
+/// directory) or target/qemu-flash.bin, its directory made, deleted first
+/// with `QEMU_FRESH=1`.
+fn user_flash() -> Result<PathBuf> {
+    let f = std::env::var_os("QEMU_FLASH")
+        .filter(|v| !v.is_empty())
+        .map(PathBuf::from)
+        .unwrap_or_else(|| util::target_dir().join("qemu-flash.bin"));
+    let f = if f.is_absolute() {
+        f
+    } else {
+        std::env::current_dir()
+            .map_err(|e| format!("no current directory: {e}"))?
+            .join(f)
+    };
+    if let Some(d) = f.parent() {
+        std::fs::create_dir_all(d).map_err(|e| format!("cannot create {}: {e}", d.display()))?;
+    }
+    if flag("QEMU_FRESH") {
+        let _ = std::fs::remove_file(&f);
+    }
+    Ok(f)
+}
+
+/// What runs, on stderr: the test's name, or where Modbus and the flash are.
+fn announce(test: bool, qemu: &setup::Qemu, elf: &Path, flash: &Path, root: &Path, modbus: &str) {
+    let flash_s = flash.display().to_string();
+    if test {
+        say(
+            P,
+            format!(
+                "QEMU {}, test {}",
+                qemu.version,
+                elf.file_name().unwrap_or_default().to_string_lossy()
+            ),
+        );
+    } else {
+        let shown = flash
+            .strip_prefix(root)
+            .map(|p| p.display().to_string())
+            .unwrap_or_else(|_| flash_s.clone());
+        say(
+            P,
+            format!(
+                "QEMU {}, Modbus on {modbus}, settings flash {shown} (QEMU_FRESH=1: factory-fresh)",
+                qemu.version
+            ),
+        );
+    }
+}
+
+/// defmt-print on QEMU's stdout (through a thread that first passes QEMU's
+/// pty line to stderr when Modbus is a pty); the child and that thread.
+fn spawn_decoder(
+    decoder: &Path,
+    elf: &Path,
+    test: bool,
+    modbus: &str,
+    qemu_out: std::process::ChildStdout,
+) -> Result<(std::process::Child, Option<std::thread::JoinHandle<()>>)> {
     let pty = modbus.starts_with("pty");
-    let mut d = Command::new(&decoder);
-    d.arg("-e").arg(&elf);
+    let mut d = Command::new(decoder);
+    d.arg("-e").arg(elf);
     d.stdout(if test {
         Stdio::piped()
     } else {
         Stdio::inherit()
     });
-    let (mut dec_child, copier) = if pty {
+    let spawned = if pty {
         // QEMU 7.2 prints "char device redirected to /dev/pts/N (label
         // serial1)" on stdout, ahead of the defmt stream: that line goes to
         // stderr, the rest to defmt-print.
@@ -275,8 +343,12 @@ pub fn main(args: &[String]) -> Result {
             .map_err(|e| format!("cannot run {}: {e}", decoder.display()))?;
         (child, None)
     };
-    // The decoded log goes to stdout and, for a test, into memory for the
-    // verdict.
+    Ok(spawned)
+}
+
+/// The decoded log to stdout as it comes and, for a test's verdict, into
+/// memory.
+fn tee_log(dec_child: &mut std::process::Child) -> String {
     let mut log = String::new();
     if let Some(out) = dec_child.stdout.take() {
         let mut r = BufReader::new(out);
@@ -295,39 +367,7 @@ pub fn main(args: &[String]) -> Result {
             }
         }
     }
-    let qemu_status = util::code(
-        qemu_child
-            .wait()
-            .map_err(|e| format!("waiting for QEMU: {e}"))?,
-    );
-    if let Some(c) = copier {
-        let _ = c.join();
-    }
-    let dec_status = util::code(
-        dec_child
-            .wait()
-            .map_err(|e| format!("waiting for defmt-print: {e}"))?,
-    );
-    if test {
-        let name = test_name(&elf);
-        drop(test_dir);
-        return match verdict(&name, qemu_status, dec_status, &log) {
-            Ok(m) => {
-                say(P, m);
-                Ok(())
-            }
-            Err(m) => {
-                say(P, m);
-                Err(Error::Exit(1))
-            }
-        };
-    }
-    // QEMU's status; the decoder's only if QEMU's is 0.
-    match (qemu_status, dec_status) {
-        (0, 0) => Ok(()),
-        (0, d) => Err(Error::Exit(d)),
-        (q, _) => Err(Error::Exit(q)),
-    }
+    log
 }
 
 #[cfg(test)]

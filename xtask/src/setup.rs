@@ -373,14 +373,7 @@ fn unpack_qemu(prefix: &Path, on_path: Option<&str>) -> Result {
         Some(v) => say(P, format!("first use: qemu-system-arm on PATH is QEMU {v}, not 7.x; leaving it alone and unpacking Debian bookworm's QEMU 7.2 into {}", prefix.display())),
         None => say(P, format!("first use: no qemu-system-arm; unpacking Debian bookworm's QEMU 7.2 (apt-get download, dpkg -x; nothing is installed) into {}", prefix.display())),
     }
-    // Package lists: a fresh container has none.
-    let listed = || util::stdout_of(&mut cmd("apt-cache", ["show", "qemu-system-arm"])).is_some();
-    if !listed() {
-        if !root_user {
-            bail!("apt knows no qemu-system-arm (no package lists yet); run this, then cargo qemu again:\n    sudo apt-get update");
-        }
-        util::run_or_say(apt_get().args(["update", "-q"]))?;
-    }
+    ensure_package_lists(root_user)?;
     let cache = prefix
         .parent()
         .ok_or("the QEMU cache directory has no parent")?
@@ -393,44 +386,7 @@ fn unpack_qemu(prefix: &Path, on_path: Option<&str>) -> Result {
         let _ = std::fs::remove_dir_all(d);
         std::fs::create_dir_all(d).map_err(|e| format!("cannot create {}: {e}", d.display()))?;
     }
-    let download = || {
-        util::capture(
-            apt_get()
-                .arg("download")
-                .arg("-q")
-                .args(QEMU_PACKAGES)
-                .current_dir(&debs),
-        )
-    };
-    let mut out = download()?;
-    if !out.status.success() && root_user {
-        // Stale lists name versions the mirror no longer has.
-        util::run_or_say(apt_get().args(["update", "-q"]))?;
-        out = download()?;
-    }
-    if !out.status.success() {
-        bail!(
-            "apt-get download {} failed:\n{}",
-            QEMU_PACKAGES.join(" "),
-            String::from_utf8_lossy(&out.stderr).trim()
-        );
-    }
-    let mut files: Vec<PathBuf> = std::fs::read_dir(&debs)
-        .map_err(|e| format!("cannot read {}: {e}", debs.display()))?
-        .filter_map(|e| e.ok().map(|e| e.path()))
-        .filter(|p| p.extension().is_some_and(|x| x == "deb"))
-        .collect();
-    files.sort();
-    for p in QEMU_PACKAGES {
-        let have = files.iter().any(|f| {
-            f.file_name()
-                .and_then(|n| n.to_str())
-                .is_some_and(|n| n.starts_with(&format!("{p}_")))
-        });
-        if !have {
-            bail!("apt-get download did not fetch {p}");
-        }
-    }
+    let files = download_debs(&debs, root_user)?;
     for f in &files {
         util::run_or_say(&mut cmd(
             "dpkg",
@@ -448,7 +404,73 @@ fn unpack_qemu(prefix: &Path, on_path: Option<&str>) -> Result {
     })?;
 
     let bin = private_bin(prefix);
-    let missing = ldd_missing(&bin);
+    install_missing_libraries(&bin, root_user)?;
+    std::fs::write(prefix.join(".unpacked"), "")
+        .map_err(|e| format!("cannot write {}: {e}", prefix.display()))?;
+    Ok(())
+}
+
+/// Package lists: a fresh container has none (only root may fetch them).
+fn ensure_package_lists(root_user: bool) -> Result {
+    let listed = || util::stdout_of(&mut cmd("apt-cache", ["show", "qemu-system-arm"])).is_some();
+    if !listed() {
+        if !root_user {
+            bail!("apt knows no qemu-system-arm (no package lists yet); run this, then cargo qemu again:\n    sudo apt-get update");
+        }
+        util::run_or_say(apt_get().args(["update", "-q"]))?;
+    }
+    Ok(())
+}
+
+/// `apt-get download` of every QEMU package into `debs` (as root, once
+/// more after `apt-get update` when stale lists name versions the mirror
+/// no longer has); the .deb files, sorted, each package among them.
+fn download_debs(debs: &Path, root_user: bool) -> Result<Vec<PathBuf>> {
+    let download = || {
+        util::capture(
+            apt_get()
+                .arg("download")
+                .arg("-q")
+                .args(QEMU_PACKAGES)
+                .current_dir(debs),
+        )
+    };
+    let mut out = download()?;
+    if !out.status.success() && root_user {
+        // Stale lists name versions the mirror no longer has.
+        util::run_or_say(apt_get().args(["update", "-q"]))?;
+        out = download()?;
+    }
+    if !out.status.success() {
+        bail!(
+            "apt-get download {} failed:\n{}",
+            QEMU_PACKAGES.join(" "),
+            String::from_utf8_lossy(&out.stderr).trim()
+        );
+    }
+    let mut files: Vec<PathBuf> = std::fs::read_dir(debs)
+        .map_err(|e| format!("cannot read {}: {e}", debs.display()))?
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "deb"))
+        .collect();
+    files.sort();
+    for p in QEMU_PACKAGES {
+        let have = files.iter().any(|f| {
+            f.file_name()
+                .and_then(|n| n.to_str())
+                .is_some_and(|n| n.starts_with(&format!("{p}_")))
+        });
+        if !have {
+            bail!("apt-get download did not fetch {p}");
+        }
+    }
+    Ok(files)
+}
+
+/// The shared libraries QEMU misses (ldd), installed by apt only as root and
+/// only if apt removes nothing for them; else what to do is the error.
+fn install_missing_libraries(bin: &Path, root_user: bool) -> Result {
+    let missing = ldd_missing(bin);
     let (packages, removals) = if missing.is_empty() {
         (Vec::new(), Vec::new())
     } else {
@@ -490,14 +512,12 @@ fn unpack_qemu(prefix: &Path, on_path: Option<&str>) -> Result {
                     .args(["install", "-y", "-q", "--no-install-recommends"])
                     .args(&pkgs),
             )?;
-            let still = ldd_missing(&bin);
+            let still = ldd_missing(bin);
             if !still.is_empty() {
                 bail!("QEMU still misses {}", still.join(", "));
             }
         }
     }
-    std::fs::write(prefix.join(".unpacked"), "")
-        .map_err(|e| format!("cannot write {}: {e}", prefix.display()))?;
     Ok(())
 }
 

@@ -18,21 +18,53 @@ fn main() {
         .nth(1)
         .unwrap_or_else(|| "docs/profile-retarget.svg".into());
     let tick_us = 1000;
+    let mut rig = new_rig(tick_us);
+    rig.axis(0).move_to(10_000);
+    let traces = simulate(&mut rig, tick_us);
+    let svg = draw(&traces);
+    if let Err(e) = std::fs::write(&out, svg) {
+        eprintln!("plot-profile: cannot write {out}: {e}");
+        std::process::exit(1);
+    }
+    println!(
+        "wrote {out}; max following error {} microsteps",
+        rig.max_following[0]
+    );
+}
+
+/// One axis, full steps on a chip at 1/128, voltage mode, 8 000 steps/s.
+fn new_rig(tick_us: u32) -> Rig {
     let cfg = AxisConfig {
         tick_us,
         logical_shift: 0,
         step: StepSel::OneTwentyEighth,
         drive: DriveMode::Voltage,
     };
-    let mut rig = Rig::new(
+    Rig::new(
         &[cfg],
         Limits {
             max_speed: 8_000,
             acc: 20_000,
             dec: 30_000,
         },
-    );
-    rig.axis(0).move_to(10_000);
+    )
+}
+
+/// What is drawn, (seconds, value) per tick.
+struct Traces {
+    /// The required position (the latest target).
+    target: Vec<(f64, f64)>,
+    /// The profile's position and speed.
+    pos: Vec<(f64, f64)>,
+    speed: Vec<(f64, f64)>,
+    /// The simulated chip's ABS_POS / 128 and signed SPEED.
+    chip: Vec<(f64, f64)>,
+    chip_speed: Vec<(f64, f64)>,
+}
+
+/// 3 s of ticks: retargeted behind itself at 0.6 s, a new target and a
+/// higher max speed at 1.4 s.
+fn simulate(rig: &mut Rig, tick_us: u32) -> Traces {
     let (mut pos, mut target, mut speed, mut chip, mut chip_speed) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new());
     let mut required = 10_000i64;
@@ -69,7 +101,18 @@ fn main() {
         };
         chip_speed.push((t, sign * s));
     }
-    let svg = render(
+    Traces {
+        target,
+        pos,
+        speed,
+        chip,
+        chip_speed,
+    }
+}
+
+/// The two panels: positions, speeds.
+fn draw(t: &Traces) -> String {
+    render(
         "stepbridge: retargeted move, profile vs simulated powerSTEP01 (1 kHz tick)",
         &[
             Panel {
@@ -79,17 +122,17 @@ fn main() {
                     Series {
                         name: "required (target)",
                         color: "#c33",
-                        points: &target,
+                        points: &t.target,
                     },
                     Series {
                         name: "profile position",
                         color: "#236",
-                        points: &pos,
+                        points: &t.pos,
                     },
                     Series {
                         name: "chip ABS_POS / 128",
                         color: "#e90",
-                        points: &chip,
+                        points: &t.chip,
                     },
                 ],
             },
@@ -100,23 +143,15 @@ fn main() {
                     Series {
                         name: "profile speed",
                         color: "#292",
-                        points: &speed,
+                        points: &t.speed,
                     },
                     Series {
                         name: "chip SPEED",
                         color: "#e90",
-                        points: &chip_speed,
+                        points: &t.chip_speed,
                     },
                 ],
             },
         ],
-    );
-    if let Err(e) = std::fs::write(&out, svg) {
-        eprintln!("plot-profile: cannot write {out}: {e}");
-        std::process::exit(1);
-    }
-    println!(
-        "wrote {out}; max following error {} microsteps",
-        rig.max_following[0]
-    );
+    )
 }

@@ -1,6 +1,6 @@
 //! The one interface every command is written against: 16-bit registers in
-//! the box's Modbus address space (README "Modbus register map" and "The
-//! extension space"), whatever carries them.
+//! the box's Modbus address space (docs/modbus.md "Modbus register map" and
+//! docs/extension-space.md), whatever carries them.
 //!
 //! * `0x00nn` is PoStep60 command `nn` (FC 0x03 reads, 0x06/0x10 writes);
 //! * `0x01nn..` is the extension space (chip registers, I/O extension,
@@ -61,4 +61,22 @@ pub fn u32_of(words: &[u16]) -> u32 {
 
 pub fn words_of(v: u32) -> [u16; 2] {
     [(v >> 16) as u16, v as u16]
+}
+
+/// Longest wait [`deadline`] gives: a year stands for "no limit".
+const LONGEST_WAIT: std::time::Duration = std::time::Duration::from_secs(31_536_000);
+
+/// The instant `after` from now, for polls and replies. A span beyond a year
+/// (a `--timeout` of centuries) is a year, so the sum never overflows the
+/// clock and never panics.
+pub fn deadline(after: std::time::Duration) -> std::time::Instant {
+    let now = std::time::Instant::now();
+    now.checked_add(after.min(LONGEST_WAIT)).unwrap_or(now)
+}
+
+/// `words[at..at + n]`, cut to what is there (empty past the end): a short
+/// reply reads as zeros in [`u32_of`], never a panic.
+pub fn words_at(words: &[u16], at: usize, n: usize) -> &[u16] {
+    let tail = words.get(at..).unwrap_or_default();
+    tail.get(..n).unwrap_or(tail)
 }

@@ -2,7 +2,7 @@
 
 use std::fmt;
 
-/// Exit codes (README "stepctl"): a shell script tests these.
+/// Exit codes (docs/stepctl.md): a shell script tests these.
 pub mod exit {
     pub const OK: i32 = 0;
     /// Bad arguments, a value out of range, a settings file that does not parse.
@@ -19,7 +19,7 @@ pub mod exit {
     pub const DOCTOR_FAIL: i32 = 6;
 }
 
-/// The meaning of a Modbus exception code (README "Modbus register map").
+/// The meaning of a Modbus exception code (docs/modbus.md "Modbus register map").
 pub fn exception_meaning(code: u8) -> &'static str {
     match code {
         1 => "illegal function",
@@ -30,7 +30,7 @@ pub fn exception_meaning(code: u8) -> &'static str {
     }
 }
 
-/// The meaning of a USB outcome byte `InDATA[14]` (README "PoStep60 over USB HID").
+/// The meaning of a USB outcome byte `InDATA[14]` (docs/usb.md).
 pub fn usb_status_meaning(status: u8) -> &'static str {
     match status {
         0 => "done",

@@ -1,4 +1,4 @@
-//! `stepctl`: see the README's "stepctl" section and `stepctl --help`.
+//! `stepctl`: see docs/stepctl.md and `stepctl --help`.
 
 use std::time::Duration;
 

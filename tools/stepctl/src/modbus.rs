@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 
 use crc::{Crc, CRC_16_MODBUS};
 
-use crate::bus::{hex, Bus, RawReply};
+use crate::bus::{deadline, hex, Bus, RawReply};
 use crate::error::{Error, Result};
 
 static CRC16: Crc<u16> = Crc::<u16>::new(&CRC_16_MODBUS);
@@ -74,14 +74,15 @@ impl Link for TcpLink {
                 break;
             }
             self.stream.set_read_timeout(Some(left))?;
-            match self.stream.read(&mut buf[n..]) {
+            let Some(rest) = buf.get_mut(n..) else { break };
+            match self.stream.read(rest) {
                 Ok(0) => {
                     return Err(io::Error::new(
                         io::ErrorKind::UnexpectedEof,
                         "the box closed the connection",
                     ))
                 }
-                Ok(k) => n += k,
+                Ok(k) => n = n.saturating_add(k),
                 Err(e)
                     if matches!(
                         e.kind(),
@@ -99,7 +100,7 @@ impl Link for TcpLink {
 
     fn drain(&mut self) {
         let mut junk = [0u8; 256];
-        let until = Instant::now() + Duration::from_millis(20);
+        let until = deadline(Duration::from_millis(20));
         while let Ok(k) = self.recv(&mut junk, until) {
             if k < junk.len() {
                 break;
@@ -145,14 +146,17 @@ impl SerialLink {
             .open()
             .map_err(|e| {
                 let hint = if e.to_string().contains("ermission") {
-                    " (add yourself to the `dialout` group: README, stepctl, serial-port permissions)"
+                    " (add yourself to the `dialout` group: docs/stepctl.md, serial port permissions)"
                 } else {
                     ""
                 };
                 Error::Comm(format!("cannot open serial port {path}: {e}{hint}"))
             })?;
         // 11-bit characters; 3.5 of them (at least 1.75 ms, the spec's floor).
-        let t35 = Duration::from_micros((38_500_000 / u64::from(baud.max(1))).max(1750));
+        let per_baud = 38_500_000_u64
+            .checked_div(u64::from(baud))
+            .unwrap_or(38_500_000);
+        let t35 = Duration::from_micros(per_baud.max(1750));
         Ok(SerialLink {
             port,
             path: path.to_string(),
@@ -162,12 +166,22 @@ impl SerialLink {
     }
 }
 
+impl std::fmt::Debug for SerialLink {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("SerialLink")
+            .field("path", &self.path)
+            .field("t35", &self.t35)
+            .finish_non_exhaustive()
+    }
+}
+
 impl Link for SerialLink {
     fn send(&mut self, frame: &[u8]) -> io::Result<()> {
-        let quiet = self.last + self.t35;
-        let now = Instant::now();
-        if quiet > now {
-            std::thread::sleep(quiet - now);
+        let quiet = self.last.checked_add(self.t35).map_or(Duration::ZERO, |q| {
+            q.saturating_duration_since(Instant::now())
+        });
+        if !quiet.is_zero() {
+            std::thread::sleep(quiet);
         }
         let _ = self.port.clear(serialport::ClearBuffer::Input);
         self.port.write_all(frame)?;
@@ -184,10 +198,11 @@ impl Link for SerialLink {
                 break;
             }
             self.port.set_timeout(left)?;
-            match self.port.read(&mut buf[n..]) {
+            let Some(rest) = buf.get_mut(n..) else { break };
+            match self.port.read(rest) {
                 Ok(0) => break,
                 Ok(k) => {
-                    n += k;
+                    n = n.saturating_add(k);
                     self.last = Instant::now();
                 }
                 Err(e) if e.kind() == io::ErrorKind::TimedOut => break,
@@ -209,6 +224,7 @@ impl Link for SerialLink {
 }
 
 /// A Modbus RTU master on a [`Link`].
+#[derive(Debug)]
 pub struct Rtu<L: Link> {
     pub link: L,
     pub timeout: Duration,
@@ -224,8 +240,12 @@ pub fn with_crc(mut frame: Vec<u8>) -> Vec<u8> {
 }
 
 fn crc_ok(frame: &[u8]) -> bool {
-    match frame.len().checked_sub(2) {
-        Some(n) if n > 0 => CRC16.checksum(&frame[..n]).to_le_bytes() == frame[n..],
+    match frame
+        .len()
+        .checked_sub(2)
+        .and_then(|n| frame.split_at_checked(n))
+    {
+        Some((body, crc)) if !body.is_empty() => CRC16.checksum(body).to_le_bytes() == crc,
         _ => false,
     }
 }
@@ -248,8 +268,9 @@ impl<L: Link> Rtu<L> {
     }
 
     fn what(&self, id: u8, pdu: &[u8]) -> String {
-        let address = u16::from_be_bytes([pdu[1], pdu[2]]);
-        let fc = pdu[0];
+        let byte = |i: usize| pdu.get(i).copied().unwrap_or(0);
+        let address = u16::from_be_bytes([byte(1), byte(2)]);
+        let fc = byte(0);
         let verb = match fc {
             READ_HOLDING => "read",
             _ => "write",
@@ -279,7 +300,36 @@ impl<L: Link> Rtu<L> {
         self.link
             .send(request)
             .map_err(|e| Error::Comm(format!("{what}: cannot send on {name}: {e}")))?;
-        let deadline = Instant::now() + self.timeout;
+        let fc = pdu.first().copied().unwrap_or(0);
+        let reply = self.receive(id, fc, &expect, &what, &name)?;
+        if self.trace {
+            eprintln!("stepctl: {name} <- {}", hex(&reply));
+        }
+        self.check_reply(id, fc, &expect, what, &name, &reply)?;
+        Ok((request.to_vec(), reply))
+    }
+
+    /// A malformed reply: the rest of it is drained, the error names it.
+    fn fail(&mut self, what: &str, id: u8, name: &str, reply: &[u8], why: &str) -> Error {
+        self.link.drain();
+        Error::Comm(format!(
+            "{what}: {why} from id {id} on {name}: {} (line noise or a second master?)",
+            hex(reply)
+        ))
+    }
+
+    /// Receive one reply ADU to function `fc`: id and function, then what
+    /// follows them (an exception's code, a byte count and that many bytes,
+    /// or an echo) and the CRC, as far as it comes before the timeout.
+    fn receive(
+        &mut self,
+        id: u8,
+        fc: u8,
+        expect: &Expect,
+        what: &str,
+        name: &str,
+    ) -> Result<Vec<u8>> {
+        let deadline = deadline(self.timeout);
         let comm = |e: io::Error| Error::Comm(format!("{what}: {name}: {e}"));
         let mut reply = vec![0u8; 2];
         let n = self.link.recv(&mut reply, deadline).map_err(comm)?;
@@ -289,68 +339,82 @@ impl<L: Link> Rtu<L> {
                 "{what}: no reply from id {id} on {name} within {ms} ms (wrong id, port or serial settings? try `stepctl scan`)"
             )));
         }
-        let fail = |link: &mut L, reply: &[u8], why: &str| {
-            link.drain();
-            Error::Comm(format!(
-                "{what}: {why} from id {id} on {name}: {} (line noise or a second master?)",
-                hex(reply)
-            ))
-        };
         if n < 2 {
-            return Err(fail(&mut self.link, &reply[..n], "short reply"));
+            let got = reply.get(..n).unwrap_or_default().to_vec();
+            return Err(self.fail(what, id, name, &got, "short reply"));
         }
-        let fc = pdu[0];
-        let rest = if reply[1] == fc | 0x80 {
+        let function = reply.get(1).copied().unwrap_or(0);
+        let rest = if function == fc | 0x80 {
             3
-        } else if reply[1] != fc {
-            return Err(fail(&mut self.link, &reply, "reply with another function"));
+        } else if function != fc {
+            return Err(self.fail(what, id, name, &reply, "reply with another function"));
         } else {
             match expect {
                 Expect::Registers(_) => {
                     let mut count = [0u8; 1];
                     let k = self.link.recv(&mut count, deadline).map_err(comm)?;
                     if k == 0 {
-                        return Err(fail(&mut self.link, &reply, "short reply"));
+                        return Err(self.fail(what, id, name, &reply, "short reply"));
                     }
-                    reply.push(count[0]);
-                    usize::from(count[0]) + 2
+                    let [count] = count;
+                    reply.push(count);
+                    usize::from(count).saturating_add(2)
                 }
                 Expect::Echo(_) => 6,
             }
         };
         let at = reply.len();
-        reply.resize(at + rest, 0);
-        let k = self.link.recv(&mut reply[at..], deadline).map_err(comm)?;
-        reply.truncate(at + k);
-        if self.trace {
-            eprintln!("stepctl: {name} <- {}", hex(&reply));
-        }
+        reply.resize(at.saturating_add(rest), 0);
+        let k = match reply.get_mut(at..) {
+            Some(tail) => self.link.recv(tail, deadline).map_err(comm)?,
+            None => 0,
+        };
+        reply.truncate(at.saturating_add(k));
         if k < rest {
-            return Err(fail(&mut self.link, &reply, "short reply"));
+            if self.trace {
+                eprintln!("stepctl: {name} <- {}", hex(&reply));
+            }
+            return Err(self.fail(what, id, name, &reply, "short reply"));
         }
-        if !crc_ok(&reply) {
-            return Err(fail(&mut self.link, &reply, "bad CRC in the reply"));
+        Ok(reply)
+    }
+
+    /// A whole reply against the request: CRC, id, exception, and the byte
+    /// count or echo `expect` says.
+    fn check_reply(
+        &mut self,
+        id: u8,
+        fc: u8,
+        expect: &Expect,
+        what: String,
+        name: &str,
+        reply: &[u8],
+    ) -> Result<()> {
+        if !crc_ok(reply) {
+            return Err(self.fail(&what, id, name, reply, "bad CRC in the reply"));
         }
-        if reply[0] != id {
-            return Err(fail(&mut self.link, &reply, "a reply for another id"));
+        if reply.first() != Some(&id) {
+            return Err(self.fail(&what, id, name, reply, "a reply for another id"));
         }
-        if reply[1] == fc | 0x80 {
+        let byte = |i: usize| reply.get(i).copied().unwrap_or(0);
+        if byte(1) == fc | 0x80 {
             return Err(Error::Exception {
-                code: reply[2],
+                code: byte(2),
                 what,
                 reason: None,
             });
         }
         match expect {
-            Expect::Registers(count) if usize::from(reply[2]) != 2 * usize::from(count) => {
-                return Err(fail(&mut self.link, &reply, "a wrong register count"));
+            Expect::Registers(count)
+                if usize::from(byte(2)) != usize::from(*count).saturating_mul(2) =>
+            {
+                Err(self.fail(&what, id, name, reply, "a wrong register count"))
             }
-            Expect::Echo(echo) if reply[2..6] != echo => {
-                return Err(fail(&mut self.link, &reply, "a wrong echo"));
+            Expect::Echo(echo) if reply.get(2..6) != Some(&echo[..]) => {
+                Err(self.fail(&what, id, name, reply, "a wrong echo"))
             }
-            _ => {}
+            _ => Ok(()),
         }
-        Ok((request.to_vec(), reply))
     }
 
     pub fn read_registers(&mut self, id: u8, address: u16, count: u16) -> Result<Vec<u16>> {
@@ -362,7 +426,7 @@ impl<L: Link> Rtu<L> {
 
     pub fn write_registers(&mut self, id: u8, address: u16, values: &[u16]) -> Result<()> {
         let pdu = write_pdu(address, values);
-        let echo = [pdu[1], pdu[2], pdu[3], pdu[4]];
+        let echo = echo_of(&pdu);
         self.transact(id, &pdu, Expect::Echo(echo)).map(|_| ())
     }
 }
@@ -371,11 +435,19 @@ impl<L: Link> Rtu<L> {
 fn registers_of(reply: &[u8]) -> Vec<u16> {
     let n = usize::from(reply.get(2).copied().unwrap_or(0));
     reply
-        .get(3..3 + n)
+        .get(3..n.saturating_add(3))
         .unwrap_or(&[])
         .chunks_exact(2)
-        .map(|w| u16::from_be_bytes([w[0], w[1]]))
+        .filter_map(|w| <[u8; 2]>::try_from(w).ok().map(u16::from_be_bytes))
         .collect()
+}
+
+/// The 4 bytes a write's reply echoes (address, value or quantity) of a
+/// write PDU.
+fn echo_of(pdu: &[u8]) -> [u8; 4] {
+    pdu.get(1..5)
+        .and_then(|e| <[u8; 4]>::try_from(e).ok())
+        .unwrap_or_default()
 }
 
 /// FC 0x06 for one register, FC 0x10 for more.
@@ -388,7 +460,8 @@ fn write_pdu(address: u16, values: &[u16]) -> Vec<u8> {
         }
         _ => {
             let [c, d] = (values.len() as u16).to_be_bytes();
-            let mut pdu = vec![WRITE_MULTIPLE, a, b, c, d, (2 * values.len()) as u8];
+            let bytes = values.len().saturating_mul(2) as u8;
+            let mut pdu = vec![WRITE_MULTIPLE, a, b, c, d, bytes];
             for v in values {
                 pdu.extend_from_slice(&v.to_be_bytes());
             }
@@ -441,7 +514,7 @@ impl<L: Link> Bus for Rtu<L> {
             })
         } else {
             let pdu = write_pdu(command, data);
-            let echo = [pdu[1], pdu[2], pdu[3], pdu[4]];
+            let echo = echo_of(&pdu);
             let request = with_crc([&[unit][..], &pdu].concat());
             let (request, reply) = self.exchange(unit, &request, &pdu, Expect::Echo(echo))?;
             Ok(RawReply {
@@ -460,7 +533,7 @@ pub mod fake {
     use super::*;
     use std::collections::VecDeque;
 
-    #[derive(Default)]
+    #[derive(Debug, Default)]
     pub struct FakeLink {
         pub script: VecDeque<(Vec<u8>, Vec<u8>)>,
         pending: Vec<u8>,
@@ -548,7 +621,7 @@ mod tests {
     use super::fake::*;
     use super::*;
 
-    // Frames: README "Modbus register map"; CRCs from the Modbus spec's
+    // Frames: docs/modbus.md "Modbus register map"; CRCs from the Modbus spec's
     // CRC-16 (poly 0xA001, init 0xFFFF, low byte first) computed outside
     // stepctl.
 
@@ -569,7 +642,7 @@ mod tests {
 
     #[test]
     fn a_two_register_write_uses_fc_10() {
-        // Set position -1000 (README: R1 high word, R2 low word).
+        // Set position -1000 (docs/modbus.md: R1 high word, R2 low word).
         let mut m = rtu(&[(
             "01 10 00 50 00 02 04 FF FF FC 18 B7 BD",
             "01 10 00 50 00 02 41 D9",

@@ -4,10 +4,10 @@
 use bridge_logic::ext_space::{axis, block, diag, homing};
 use serde::Serialize;
 
-use crate::bus::{i32_of, u32_of, Bus};
+use crate::bus::{i32_of, u32_of, words_at, Bus};
 use crate::error::{Error, Result};
 
-/// PoStep60 registers (README "Modbus register map").
+/// PoStep60 registers (docs/modbus.md "Modbus register map").
 pub mod reg {
     pub const RUN_SLEEP: u16 = 0x03;
     pub const SET_MODE: u16 = 0x05;
@@ -117,7 +117,7 @@ pub fn motion(bus: &mut dyn Bus, unit: u8) -> Result<Motion> {
     let r = bus.read(unit, AXIS_BLOCK, AXIS_BLOCK_LEN)?;
     let w = |i: usize| r.get(i).copied().unwrap_or(0);
     Ok(Motion {
-        speed: i32_of(&r[..2.min(r.len())]),
+        speed: i32_of(words_at(&r, 0, 2)),
         position: i32_of(r.get(2..4).unwrap_or(&[])),
         target: i32_of(r.get(4..6).unwrap_or(&[])),
         state: w(6),
@@ -203,7 +203,7 @@ pub fn box_info(bus: &mut dyn Bus, unit: u8) -> Result<BoxInfo> {
         hardware: format!("{}.{}", w(1) >> 8, w(1) & 0xFF),
         firmware: format!("{}.{}", w(2) >> 8, w(2) & 0xFF),
         axes: dv(0),
-        build_id: format!("{:08X}", u32_of(&d[4.min(d.len())..6.min(d.len())])),
+        build_id: format!("{:08X}", u32_of(words_at(&d, 4, 2))),
         reset_cause: match dv(1) {
             1 => "power-on",
             2 => "reset pin",
@@ -243,17 +243,34 @@ pub fn explain(bus: &mut dyn Bus, unit: u8, address: u16, e: Error) -> Error {
     }
 }
 
+/// What [`find_reason`] reads of the axis: driver status, faults, mode, moving.
+struct AxisNow {
+    ds: u16,
+    faults: u16,
+    mode: u16,
+    moving: bool,
+}
+
 fn find_reason(bus: &mut dyn Bus, unit: u8, address: u16) -> Option<String> {
-    let ds = one(bus, unit, reg::DRIVER_STATUS).ok()?;
-    let faults = one(bus, unit, reg::FAULTS).ok()?;
-    let mode = one(bus, unit, reg::DRIVER_MODE).ok()?;
-    let moving = motion(bus, unit).map(|m| !m.settled()).unwrap_or(false);
+    let now = AxisNow {
+        ds: one(bus, unit, reg::DRIVER_STATUS).ok()?,
+        faults: one(bus, unit, reg::FAULTS).ok()?,
+        mode: one(bus, unit, reg::DRIVER_MODE).ok()?,
+        moving: motion(bus, unit).map(|m| !m.settled()).unwrap_or(false),
+    };
+    refused_by_state(unit, address, &now).or_else(|| busy_reason(unit, address, &now))
+}
+
+/// The reasons the command itself or the axis's state (faulted, asleep, the
+/// wrong driver mode) give, in order.
+fn refused_by_state(unit: u8, address: u16, now: &AxisNow) -> Option<String> {
+    let mode = now.mode;
     let motion_cmd = matches!(address, 0x50 | 0x54 | 0x55) || address == HOMING_COMMAND;
     if address == reg::SET_MODE {
         return Some(format!(
             "axis is refusing that driver mode (mode 3 DC motor, and 1 external step/dir where \
              the board does not route STEP, cannot run on a powerSTEP01); it stays in mode {mode} ({})",
-            mode_name(mode)
+            mode_name(now.mode)
         ));
     }
     if address == 0x06 {
@@ -261,30 +278,36 @@ fn find_reason(bus: &mut dyn Bus, unit: u8, address: u16) -> Option<String> {
             "axis cannot drive a DC motor (PWM is refused by a powerSTEP01 bridge)".into(),
         );
     }
-    if faults & STOPPING_FAULTS != 0 {
+    if now.faults & STOPPING_FAULTS != 0 {
         return Some(format!(
             "axis is faulted ({}): clear with `stepctl reset-faults {unit}`",
-            fault_names(faults)
+            fault_names(now.faults)
         ));
     }
-    if ds == 1 && motion_cmd {
+    if now.ds == 1 && motion_cmd {
         return Some(format!(
             "axis is asleep: wake it with `stepctl wake {unit}`"
         ));
     }
-    if address == reg::SET_POSITION && !matches!(mode, 4 | 5) {
+    if address == reg::SET_POSITION && !matches!(now.mode, 4 | 5) {
         return Some(format!(
             "axis is in driver mode {mode} ({}): set position needs mode 4 (position) or 5 (BINx): \
              `stepctl settings set {unit} mode position`",
-            mode_name(mode)
+            mode_name(now.mode)
         ));
     }
-    if matches!(address, 0x54 | 0x55) && mode != 6 {
+    if matches!(address, 0x54 | 0x55) && now.mode != 6 {
         return Some(format!(
             "axis is in driver mode {mode} ({}): requested speed and invert need mode 6 (auto run)",
-            mode_name(mode)
+            mode_name(now.mode)
         ));
     }
+    None
+}
+
+/// The reasons that need the axis to rest or sleep: a save, a chip register,
+/// homing, or just busy.
+fn busy_reason(unit: u8, address: u16, now: &AxisNow) -> Option<String> {
     if address == reg::WRITE_SETTINGS {
         return Some(
             "settings cannot be saved while an axis moves (or while a save is in progress): \
@@ -309,16 +332,16 @@ fn find_reason(bus: &mut dyn Bus, unit: u8, address: u16) -> Option<String> {
         });
     }
     if address == HOMING_COMMAND {
-        return Some(if moving {
+        return Some(if now.moving {
             "axis is moving: homing starts only from rest".into()
         } else {
             "homing is not possible now (end switch disabled, asleep or faulted)".into()
         });
     }
-    if moving {
+    if now.moving {
         return Some("axis is busy (moving, homing or saving)".into());
     }
-    if ds == 1 {
+    if now.ds == 1 {
         return Some(format!(
             "axis is asleep: wake it with `stepctl wake {unit}`"
         ));

@@ -1,4 +1,4 @@
-//! The box over USB HID (README "PoStep60 over USB HID"): 64-byte reports,
+//! The box over USB HID (docs/usb.md): 64-byte reports,
 //! byte 0 the report id 2, `OutDATA[1]` the command, `OutDATA[62]` the axis;
 //! replies carry the axis in `InDATA[13]` and the outcome in `InDATA[14]`.
 //!
@@ -72,7 +72,7 @@ pub fn not_found() -> Error {
     Error::Comm(format!(
         "USB: no stepbridge/PoStep60 HID device (VID 0x{VID:04X}, PID 0x{PID:04X}) found: is the box \
          plugged in and running a firmware with USB HID (the QEMU image has no USB: use --tcp), \
-         and may you open /dev/hidraw* (README: udev rule)?"
+         and may you open /dev/hidraw* (docs/usb.md: udev rule)?"
     ))
 }
 
@@ -80,6 +80,14 @@ pub fn not_found() -> Error {
 pub struct HidapiDevice {
     dev: hidapi::HidDevice,
     name: String,
+}
+
+impl std::fmt::Debug for HidapiDevice {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("HidapiDevice")
+            .field("name", &self.name)
+            .finish_non_exhaustive()
+    }
 }
 
 impl HidapiDevice {
@@ -119,7 +127,7 @@ impl HidapiDevice {
             .map_err(|_| Error::Comm("USB: a device path with a NUL byte".into()))?;
         let dev = api.open_path(&path).map_err(|e| {
             Error::Comm(format!(
-                "USB: cannot open {} ({e}): on Linux install the udev rule of the README",
+                "USB: cannot open {} ({e}): on Linux install the udev rule of docs/usb.md",
                 f.path
             ))
         })?;
@@ -158,6 +166,7 @@ impl Hid for HidapiDevice {
 const DRAIN_MAX: usize = 128;
 
 /// The box over a [`Hid`].
+#[derive(Debug)]
 pub struct UsbBus<H: Hid> {
     pub hid: H,
     pub timeout: Duration,
@@ -173,14 +182,28 @@ pub fn out_report(unit: u8, command: u8) -> Report {
     r
 }
 
+/// `N` bytes of a reply at `i`; zeros past the report's end (never a panic).
+fn bytes_at<const N: usize>(r: &Report, i: usize) -> [u8; N] {
+    r.get(i..)
+        .and_then(|t| t.get(..N))
+        .and_then(|b| <[u8; N]>::try_from(b).ok())
+        .unwrap_or([0; N])
+}
 fn le16(r: &Report, i: usize) -> u16 {
-    u16::from_le_bytes([r[i], r[i + 1]])
+    u16::from_le_bytes(bytes_at(r, i))
 }
 fn be16(r: &Report, i: usize) -> u16 {
-    u16::from_be_bytes([r[i], r[i + 1]])
+    u16::from_be_bytes(bytes_at(r, i))
 }
 fn le32(r: &Report, i: usize) -> u32 {
-    u32::from_le_bytes([r[i], r[i + 1], r[i + 2], r[i + 3]])
+    u32::from_le_bytes(bytes_at(r, i))
+}
+/// Put `bytes` into a report at `at` (callers keep within its 64 bytes;
+/// anything past them is dropped, never a panic).
+fn put(out: &mut Report, at: usize, bytes: &[u8]) {
+    if let Some(d) = out.get_mut(at..).and_then(|t| t.get_mut(..bytes.len())) {
+        d.copy_from_slice(bytes);
+    }
 }
 fn sat16(v: u32) -> u16 {
     u16::try_from(v).unwrap_or(u16::MAX)
@@ -190,7 +213,9 @@ fn sat16(v: u32) -> u16 {
 fn drv_of(r: &Report) -> Drv8711Regs {
     let mut regs = [0u16; DRV_REGISTERS];
     for (k, v) in regs.iter_mut().enumerate() {
-        *v = le16(r, 40 + 2 * k);
+        #[allow(clippy::arithmetic_side_effects)] // k < DRV_REGISTERS (8): bytes 40..55
+        let at = 40 + 2 * k;
+        *v = le16(r, at);
     }
     Drv8711Regs(regs)
 }
@@ -234,7 +259,7 @@ impl<H: Hid> UsbBus<H> {
         self.hid
             .write(out)
             .map_err(|e| Error::Comm(format!("{what}: cannot write to {name}: {e}")))?;
-        let deadline = Instant::now() + self.timeout;
+        let deadline = crate::bus::deadline(self.timeout);
         loop {
             let left = deadline.saturating_duration_since(Instant::now());
             let r = self
@@ -244,7 +269,7 @@ impl<H: Hid> UsbBus<H> {
             let Some(r) = r else {
                 return Err(Error::Comm(format!(
                     "{what}: no reply from axis {} on {name} within {} ms",
-                    u16::from(out[AXIS_BYTE]) + 1,
+                    u16::from(out[AXIS_BYTE]).saturating_add(1),
                     self.timeout.as_millis()
                 )));
             };
@@ -283,7 +308,7 @@ impl<H: Hid> UsbBus<H> {
         out[20..22].copy_from_slice(&address.to_be_bytes());
         out[22] = count as u8;
         let r = self.transact(&out, &format!("axis {unit}: read 0x{address:04X}"))?;
-        Ok((0..n).map(|i| be16(&r, 16 + 2 * i)).collect())
+        Ok((16..).step_by(2).take(n).map(|at| be16(&r, at)).collect())
     }
 
     fn ext_write(&mut self, unit: u8, address: u16, values: &[u16]) -> Result<()> {
@@ -295,8 +320,9 @@ impl<H: Hid> UsbBus<H> {
         let mut out = out_report(unit, cmd::EXT_WRITE);
         out[20..22].copy_from_slice(&address.to_be_bytes());
         out[22] = values.len() as u8;
-        for (i, v) in values.iter().enumerate() {
-            out[24 + 2 * i..26 + 2 * i].copy_from_slice(&v.to_be_bytes());
+        let data = out.get_mut(24..).unwrap_or_default().chunks_exact_mut(2);
+        for (o, v) in data.zip(values) {
+            o.copy_from_slice(&v.to_be_bytes());
         }
         self.transact(&out, &format!("axis {unit}: write 0x{address:04X}"))
             .map(|_| ())
@@ -346,9 +372,10 @@ impl<H: Hid> UsbBus<H> {
         out[2] = profile;
         out[20..24].copy_from_slice(&target.to_le_bytes());
         for (k, lim) in limits.iter().enumerate() {
+            #[allow(clippy::arithmetic_side_effects)] // k < 3: bytes 24..35
             let at = 24 + 4 * k;
             let v = lim.unwrap_or(le32(&other, at));
-            out[at..at + 4].copy_from_slice(&v.to_le_bytes());
+            put(&mut out, at, &v.to_le_bytes());
         }
         // 0x88 flags: 0 end switch, 1 NC, 4 invert; 0xB1: 0, 1, 2 invert.
         let f = other[36];
@@ -360,7 +387,7 @@ impl<H: Hid> UsbBus<H> {
 
     fn unsupported(address: u16) -> Error {
         Error::Usage(format!(
-            "register 0x{address:04X} has no USB command (README: stepctl over USB); use Modbus (--tcp/--port)"
+            "register 0x{address:04X} has no USB command (docs/stepctl.md: USB); use Modbus (--tcp/--port)"
         ))
     }
 }
@@ -405,7 +432,12 @@ impl<H: Hid> Bus for UsbBus<H> {
                 let r = self.call(unit, cmd::READ_OTHER, "read other configuration")?;
                 match address {
                     0x46 => vec![u16::from(r[36] >> 4 & 1)],
-                    _ => vec![sat16(le32(&r, 24 + 4 * usize::from(address - 0x41)))],
+                    _ => {
+                        #[allow(clippy::arithmetic_side_effects)]
+                        // address in 0x41..=0x43: bytes 24..35
+                        let at = 24 + 4 * usize::from(address - 0x41);
+                        vec![sat16(le32(&r, at))]
+                    }
                 }
             }
             0x40 => self.ext_read(unit, 0x0602, 2)?,
@@ -475,7 +507,9 @@ impl<H: Hid> Bus for UsbBus<H> {
             0x50 => self.trajectory(unit, Some(crate::bus::i32_of(values)), [None; 3]),
             0x51..=0x53 => {
                 let mut limits = [None; 3];
-                limits[usize::from(address - 0x51)] = Some(u32::from(v));
+                if let Some(l) = limits.get_mut(usize::from(address.saturating_sub(0x51))) {
+                    *l = Some(u32::from(v));
+                }
                 self.trajectory(unit, None, limits)
             }
             0x5E => self
@@ -515,8 +549,8 @@ impl<H: Hid> Bus for UsbBus<H> {
                 "at most 60 data bytes (OutDATA[2..61])".into(),
             ));
         }
-        for (i, v) in data.iter().enumerate() {
-            out[2 + i] = *v as u8;
+        for (o, v) in out.iter_mut().skip(2).zip(data) {
+            *o = *v as u8;
         }
         let reply = match self.transact(&out, &format!("axis {unit}: USB command 0x{command:02X}"))
         {
@@ -538,7 +572,7 @@ pub mod fake {
     use std::collections::VecDeque;
 
     /// Replies queued per write; every written report is kept.
-    #[derive(Default)]
+    #[derive(Debug, Default)]
     pub struct FakeHid {
         pub written: Vec<Report>,
         pub replies: VecDeque<Vec<Report>>,
@@ -553,6 +587,7 @@ pub mod fake {
         }
     }
 
+    #[derive(Debug)]
     pub struct Pending(pub VecDeque<Report>);
 
     impl Hid for (FakeHid, Pending) {
@@ -604,7 +639,7 @@ mod tests {
     use super::fake::*;
     use super::*;
 
-    // Layouts: README "PoStep60 over USB HID" and docs/DECISIONS.md "USB
+    // Layouts: docs/usb.md and docs/DECISIONS.md "USB
     // HID" (0x01: supply [8..9] and temperature [44..45] big-endian, status
     // [46]; 0x81: packet id 0xBA, response 0x81, DRV8711 image [40..55] LSB
     // first, mode [62]; 0x88: 0xCC / 0x87, LE32 limits at [24], [28], [32]).

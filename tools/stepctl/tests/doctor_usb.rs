@@ -4,6 +4,14 @@
 //! from `Bridge::usb_next`, with control ticks in between, so the 0xE0
 //! extension reads (chunks of at most 16, chip registers answered a tick
 //! later) are what the firmware serves.
+// A test: it may index, unwrap and panic.
+#![allow(
+    clippy::indexing_slicing,
+    clippy::arithmetic_side_effects,
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic
+)]
 
 use std::time::Duration;
 

@@ -56,6 +56,8 @@ use crate::protocol::{status, Reply, Submit, Unlink};
 
 /// Endpoint numbers 0..=15.
 pub const ENDPOINTS: usize = 16;
+// `submit` takes an URB's endpoint number as `ep & 0x0F`: one slot each.
+const _: () = assert!(ENDPOINTS == 16);
 
 /// A hub-class request to a port: SET_FEATURE(PORT_RESET). The kernel's
 /// USB/IP server takes this as "reset the device"; so does this bus.
@@ -243,6 +245,7 @@ impl Core {
     }
 
     /// An IN endpoint's waiting packet into its first URB.
+    #[allow(clippy::indexing_slicing)] // k < ENDPOINTS: every caller masks or checks it
     fn match_in(&mut self, k: usize) {
         let Some(packet) = self.in_packet[k].take() else {
             return;
@@ -273,6 +276,7 @@ impl Core {
         }
     }
 
+    #[allow(clippy::indexing_slicing)] // k = ep & 0x0F < 16 = ENDPOINTS (asserted below)
     fn submit(&mut self, urb: Submit) {
         if !self.attached {
             return;
@@ -355,6 +359,7 @@ impl Core {
         self.replies.clear();
     }
 
+    #[allow(clippy::indexing_slicing)] // k < ENDPOINTS: checked first
     fn write(&mut self, ep: EndpointAddress, buf: &[u8]) -> usb_device::Result<usize> {
         let k = ep.index();
         if ep.direction() != UsbDirection::In || k >= ENDPOINTS {
@@ -380,7 +385,7 @@ impl Core {
     fn write_ep0(&mut self, buf: &[u8]) -> usize {
         let max = self.ep0_max();
         let Some(c) = self.control.as_mut() else {
-            self.stray_ep0_writes += 1;
+            self.stray_ep0_writes = self.stray_ep0_writes.saturating_add(1);
             return buf.len();
         };
         match c.stage {
@@ -401,12 +406,13 @@ impl Core {
                 self.finish_control(status::PROTOCOL);
             }
             Stage::Setup | Stage::DataOut | Stage::StatusOut => {
-                self.stray_ep0_writes += 1;
+                self.stray_ep0_writes = self.stray_ep0_writes.saturating_add(1);
             }
         }
         buf.len()
     }
 
+    #[allow(clippy::indexing_slicing)] // k < ENDPOINTS: checked first
     fn read(&mut self, ep: EndpointAddress, buf: &mut [u8]) -> usb_device::Result<usize> {
         let k = ep.index();
         if ep.direction() != UsbDirection::Out || k >= ENDPOINTS || self.ep_out[k].is_none() {
@@ -419,10 +425,11 @@ impl Core {
         let Some(t) = self.out_queue[k].front_mut() else {
             return Err(UsbError::WouldBlock);
         };
-        let n = (t.urb.data.len() - t.pos).min(max);
+        let left = t.urb.data.get(t.pos..).unwrap_or_default();
+        let n = left.len().min(max);
         let dst = buf.get_mut(..n).ok_or(UsbError::BufferOverflow)?;
-        dst.copy_from_slice(t.urb.data.get(t.pos..t.pos + n).unwrap_or(&[]));
-        t.pos += n;
+        dst.copy_from_slice(left.get(..n).unwrap_or_default());
+        t.pos = t.pos.saturating_add(n);
         if t.pos >= t.urb.data.len() {
             if let Some(t) = self.out_queue[k].pop_front() {
                 let len = t.urb.data.len();
@@ -451,10 +458,11 @@ impl Core {
                 Ok(8)
             }
             Stage::DataOut => {
-                let n = (c.urb.data.len() - c.pos).min(max);
+                let left = c.urb.data.get(c.pos..).unwrap_or_default();
+                let n = left.len().min(max);
                 let dst = buf.get_mut(..n).ok_or(UsbError::BufferOverflow)?;
-                dst.copy_from_slice(c.urb.data.get(c.pos..c.pos + n).unwrap_or(&[]));
-                c.pos += n;
+                dst.copy_from_slice(left.get(..n).unwrap_or_default());
+                c.pos = c.pos.saturating_add(n);
                 if c.pos >= c.urb.data.len() {
                     c.stage = Stage::StatusIn;
                 }
@@ -468,6 +476,7 @@ impl Core {
         }
     }
 
+    #[allow(clippy::indexing_slicing)] // k < ENDPOINTS: checked first
     fn set_stalled(&mut self, ep: EndpointAddress, stalled: bool) {
         let k = ep.index();
         if k >= ENDPOINTS {
@@ -504,7 +513,7 @@ impl Core {
     fn poll(&mut self) -> PollResult {
         if self.reset_pending {
             self.reset_pending = false;
-            self.resets += 1;
+            self.resets = self.resets.saturating_add(1);
             return PollResult::Reset;
         }
         if self.suspend_pending {
@@ -629,14 +638,16 @@ impl Port {
     /// URBs neither completed nor unlinked.
     pub fn pending_urbs(&self) -> usize {
         let c = lock(&self.0);
+        let queued = |qs: &[VecDeque<Transfer>]| qs.iter().map(VecDeque::len).sum::<usize>();
         usize::from(c.control.is_some())
-            + c.control_queue.len()
-            + c.out_queue.iter().map(VecDeque::len).sum::<usize>()
-            + c.in_queue.iter().map(VecDeque::len).sum::<usize>()
+            .saturating_add(c.control_queue.len())
+            .saturating_add(queued(&c.out_queue))
+            .saturating_add(queued(&c.in_queue))
     }
 }
 
 impl usb_device::bus::UsbBus for UsbIpBus {
+    #[allow(clippy::indexing_slicing)] // k < ENDPOINTS: checked, or from 1..ENDPOINTS
     fn alloc_ep(
         &mut self,
         ep_dir: UsbDirection,

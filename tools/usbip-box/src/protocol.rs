@@ -303,9 +303,11 @@ impl DeviceInfo {
     /// The device record of an OP_REP_IMPORT body (a client's view; the
     /// interfaces are not in it).
     pub fn decode_record(r: &[u8]) -> Option<DeviceInfo> {
-        let n = |at: usize| get32(r, PATH_LEN + BUSID_LEN + at);
-        let h = |at: usize| get16(r, PATH_LEN + BUSID_LEN + at);
-        let byte = |at: usize| r.get(PATH_LEN + BUSID_LEN + at).copied();
+        // The numeric fields follow the path and the bus id.
+        let fields = r.get(PATH_LEN..)?.get(BUSID_LEN..)?;
+        let n = |at: usize| get32(fields, at);
+        let h = |at: usize| get16(fields, at);
+        let byte = |at: usize| fields.get(at).copied();
         Some(DeviceInfo {
             path: padded_str(r.get(..PATH_LEN)?),
             busid: padded_str(r.get(PATH_LEN..PATH_LEN + BUSID_LEN)?),
@@ -335,13 +337,14 @@ pub fn decode_devlist(b: &[u8]) -> Option<Vec<DeviceInfo>> {
     let mut at = OP_HEADER_LEN + 4;
     let mut devices = Vec::new();
     for _ in 0..n.min(64) {
-        let mut d = DeviceInfo::decode_record(b.get(at..at + DEVICE_RECORD_LEN)?)?;
-        let interfaces = usize::from(*b.get(at + DEVICE_RECORD_LEN - 1)?);
-        at += DEVICE_RECORD_LEN;
+        let record = b.get(at..)?.get(..DEVICE_RECORD_LEN)?;
+        let mut d = DeviceInfo::decode_record(record)?;
+        let interfaces = usize::from(*record.last()?);
+        at = at.checked_add(DEVICE_RECORD_LEN)?;
         for _ in 0..interfaces {
-            let i = b.get(at..at + 4)?;
+            let i = b.get(at..)?.get(..4)?;
             d.interfaces.push((*i.first()?, *i.get(1)?, *i.get(2)?));
-            at += 4;
+            at = at.checked_add(4)?;
         }
         devices.push(d);
     }
@@ -369,7 +372,7 @@ pub fn encode_req_import(busid: &str) -> Vec<u8> {
 
 /// Client side (tests): a CMD_SUBMIT's bytes.
 pub fn encode_submit(s: &Submit) -> Vec<u8> {
-    let mut b = Vec::with_capacity(HEADER_LEN + s.data.len());
+    let mut b = Vec::with_capacity(HEADER_LEN.saturating_add(s.data.len()));
     for v in [
         CMD_SUBMIT,
         s.seqnum,
@@ -423,7 +426,7 @@ pub fn decode_reply(b: &[u8], is_in: impl Fn(u32) -> bool) -> Option<(Reply, usi
             } else {
                 0
             };
-            let data = b.get(HEADER_LEN..HEADER_LEN + n)?.to_vec();
+            let data = b.get(HEADER_LEN..)?.get(..n)?.to_vec();
             Some((
                 Reply::Submit {
                     seqnum,
@@ -431,7 +434,7 @@ pub fn decode_reply(b: &[u8], is_in: impl Fn(u32) -> bool) -> Option<(Reply, usi
                     actual_length,
                     data,
                 },
-                HEADER_LEN + n,
+                HEADER_LEN.checked_add(n)?,
             ))
         }
         RET_UNLINK => Some((Reply::Unlink { seqnum, status }, HEADER_LEN)),
@@ -494,7 +497,7 @@ impl Decoder {
         let Some(head) = self.buf.get(..HEADER_LEN) else {
             return Ok(None);
         };
-        let w = |i: usize| get32(head, 4 * i).unwrap_or(0);
+        let w = |i: usize| i.checked_mul(4).and_then(|at| get32(head, at)).unwrap_or(0);
         let command = w(0);
         match command {
             CMD_SUBMIT => {
@@ -516,8 +519,14 @@ impl Decoder {
                 } else {
                     0
                 };
-                let iso_len = if iso { packets as usize * 16 } else { 0 };
-                let total = HEADER_LEN + data_len + iso_len;
+                // Both bounded above (MAX_TRANSFER, MAX_ISO_PACKETS); saturating
+                // all the same, so no header can make the sum wrap.
+                let iso_len = if iso {
+                    (packets as usize).saturating_mul(16)
+                } else {
+                    0
+                };
+                let total = HEADER_LEN.saturating_add(data_len).saturating_add(iso_len);
                 if self.buf.len() < total {
                     return Ok(None);
                 }
@@ -536,7 +545,8 @@ impl Decoder {
                     setup,
                     data: self
                         .buf
-                        .get(HEADER_LEN..HEADER_LEN + data_len)
+                        .get(HEADER_LEN..)
+                        .and_then(|d| d.get(..data_len))
                         .unwrap_or(&[])
                         .to_vec(),
                 };
@@ -572,7 +582,7 @@ fn put_padded(b: &mut Vec<u8>, s: &str, len: usize) {
     let bytes = s.as_bytes();
     let n = bytes.len().min(len.saturating_sub(1));
     b.extend_from_slice(bytes.get(..n).unwrap_or(&[]));
-    b.resize(b.len() + (len - n), 0);
+    b.resize(b.len().saturating_add(len.saturating_sub(n)), 0);
 }
 
 fn padded_str(b: &[u8]) -> String {
@@ -581,16 +591,13 @@ fn padded_str(b: &[u8]) -> String {
 }
 
 fn get16(b: &[u8], at: usize) -> Option<u16> {
-    Some(u16::from_be_bytes([*b.get(at)?, *b.get(at + 1)?]))
+    let bytes = b.get(at..)?.get(..2)?;
+    Some(u16::from_be_bytes(bytes.try_into().ok()?))
 }
 
 fn get32(b: &[u8], at: usize) -> Option<u32> {
-    Some(u32::from_be_bytes([
-        *b.get(at)?,
-        *b.get(at + 1)?,
-        *b.get(at + 2)?,
-        *b.get(at + 3)?,
-    ]))
+    let bytes = b.get(at..)?.get(..4)?;
+    Some(u32::from_be_bytes(bytes.try_into().ok()?))
 }
 
 #[cfg(test)]

@@ -37,6 +37,7 @@ pub enum Event {
     Detached(String),
 }
 
+#[derive(Debug)]
 struct Conn {
     stream: TcpStream,
     peer: SocketAddr,
@@ -97,6 +98,7 @@ impl Conn {
 }
 
 /// The server.
+#[derive(Debug)]
 pub struct Server {
     listener: TcpListener,
     info: DeviceInfo,

@@ -8,6 +8,14 @@
 //! The client and the server run in one thread: the client writes, then the
 //! test pumps the server and the box (network, USB task, control ticks)
 //! until the replies it waits for have come.
+// A test: it may index, unwrap and panic.
+#![allow(
+    clippy::indexing_slicing,
+    clippy::arithmetic_side_effects,
+    clippy::unwrap_used,
+    clippy::expect_used,
+    clippy::panic
+)]
 
 use std::io::{ErrorKind, Read, Write};
 use std::net::TcpStream;

@@ -59,6 +59,25 @@ pub(super) fn first_true(lo: u64, hi: u64, pred: impl Fn(u64) -> bool) -> Option
     Some(lo)
 }
 
+/// A position move's facts for one step of the engine: where to, how far
+/// in whole microsteps and in 2⁻⁴⁰ microsteps (`r`), and a full step in
+/// 2⁻⁴⁰ microsteps at this step mode (`ms`).
+#[derive(Clone, Copy)]
+struct Leg {
+    dir: Direction,
+    target: u32,
+    remaining: u64,
+    r: u128,
+    ms: u128,
+}
+
+impl Leg {
+    /// Whether `dist` (full-step units) reaches the target.
+    fn reaches(&self, dist: u128) -> bool {
+        dist.saturating_mul(self.ms) >= self.r
+    }
+}
+
 impl Powerstep01 {
     // ---------------------------------------------------------- motion ----
 
@@ -322,47 +341,34 @@ impl Powerstep01 {
             self.land(dir, 0);
             return Some(0);
         }
-        let ms = 1u128 << self.step_shift();
-        // Remaining distance in 2⁻⁴⁰ microsteps (> 0: remaining ≥ 1, frac < 1).
-        let r = (u128::from(remaining) << FRAC_BITS).saturating_sub(u128::from(self.frac));
+        let leg = Leg {
+            dir,
+            target,
+            remaining,
+            // Remaining distance in 2⁻⁴⁰ microsteps (> 0: remaining ≥ 1, frac < 1).
+            r: (u128::from(remaining) << FRAC_BITS).saturating_sub(u128::from(self.frac)),
+            ms: 1u128 << self.step_shift(),
+        };
         let v = self.v;
         let vf = self.floor();
         let vmax = self.vmax();
         let d = self.dec();
-        // Distance `dist` (full-step units) reaches the target?
-        let reaches = |dist: u128| dist.saturating_mul(ms) >= r;
 
         if braking {
             if v > vf && d > 0 {
-                let n1 = (v - vf) / d;
-                if n1 == 0 {
-                    self.v = vf;
-                    return Some(0);
-                }
-                if avail == 0 {
-                    return None;
-                }
-                let n = n1.min(avail);
-                if let Some(j) = first_true(1, n, |j| reaches(s_down(v, d, j))) {
-                    self.land(dir, remaining);
-                    return Some(j);
-                }
-                let steps = self.ramp_down(d, n);
-                let rem = remaining.saturating_sub(u64::try_from(steps).unwrap_or(u64::MAX));
-                self.set_position_state(dir, target, rem, true);
-                return Some(n);
+                return self.ramp_down_position(leg, vf, true, avail);
             }
             if v == 0 {
                 // Braked to a standstill short of the target (floor 0): go on.
                 self.set_position_state(dir, target, remaining, false);
                 return Some(0);
             }
-            return self.cruise_position(dir, target, remaining, r, None, avail);
+            return self.cruise_position(dir, target, remaining, leg.r, None, avail);
         }
 
         // Start braking once the remaining distance is within the braking distance.
         let b = brake_dist(v, vf, d);
-        if b.is_none_or(reaches) && v > 0 {
+        if b.is_none_or(|dist| leg.reaches(dist)) && v > 0 {
             self.set_position_state(dir, target, remaining, true);
             return Some(0);
         }
@@ -372,61 +378,87 @@ impl Powerstep01 {
         }
         if v > vmax {
             // Over speed (MAX_SPEED lowered): d > 0 here, else b would be None.
-            let n1 = (v - vmax) / d.max(1);
-            if n1 == 0 {
-                self.v = vmax;
-                return Some(0);
-            }
-            if avail == 0 {
-                return None;
-            }
-            let n = n1.min(avail);
-            if let Some(j) = first_true(1, n, |j| reaches(s_down(v, d, j))) {
-                self.land(dir, remaining);
-                return Some(j);
-            }
-            let steps = self.ramp_down(d, n);
-            let rem = remaining.saturating_sub(u64::try_from(steps).unwrap_or(u64::MAX));
-            self.set_position_state(dir, target, rem, false);
-            return Some(n);
+            return self.ramp_down_position(leg, vmax, false, avail);
         }
         if v < vmax {
-            let a = self.acc();
-            if a == 0 {
-                return self.cruise_position(dir, target, remaining, r, b, avail);
-            }
-            let n1 = (vmax - v) / a;
-            if n1 == 0 {
-                self.v = vmax;
-                return Some(0);
-            }
-            if avail == 0 {
-                return None;
-            }
-            let n = n1.min(avail);
-            let trigger = |j: u64| {
-                let moved = s_up(v, a, j);
-                match brake_dist(v + a * j, vf, d) {
-                    None => true,
-                    Some(bd) => reaches(moved.saturating_add(bd)),
-                }
-            };
-            if let Some(j) = first_true(1, n, trigger) {
-                if reaches(s_up(v, a, j)) {
-                    self.land(dir, remaining);
-                } else {
-                    let steps = self.ramp_up(a, j);
-                    let rem = remaining.saturating_sub(u64::try_from(steps).unwrap_or(u64::MAX));
-                    self.set_position_state(dir, target, rem, true);
-                }
-                return Some(j);
-            }
-            let steps = self.ramp_up(a, n);
-            let rem = remaining.saturating_sub(u64::try_from(steps).unwrap_or(u64::MAX));
-            self.set_position_state(dir, target, rem, false);
-            return Some(n);
+            return self.accelerate_position(leg, b, avail);
         }
-        self.cruise_position(dir, target, remaining, r, b, avail)
+        self.cruise_position(dir, target, remaining, leg.r, b, avail)
+    }
+
+    /// Down by DEC towards `to` (the floor while braking, MAX_SPEED when over
+    /// it), landing if the target comes first; `braking` is the state after
+    /// the ramp. DEC > 0 (the callers checked).
+    fn ramp_down_position(&mut self, leg: Leg, to: u64, braking: bool, avail: u64) -> Option<u64> {
+        let v = self.v;
+        let d = self.dec();
+        let n1 = (v - to) / d.max(1);
+        if n1 == 0 {
+            self.v = to;
+            return Some(0);
+        }
+        if avail == 0 {
+            return None;
+        }
+        let n = n1.min(avail);
+        if let Some(j) = first_true(1, n, |j| leg.reaches(s_down(v, d, j))) {
+            self.land(leg.dir, leg.remaining);
+            return Some(j);
+        }
+        let steps = self.ramp_down(d, n);
+        let rem = leg
+            .remaining
+            .saturating_sub(u64::try_from(steps).unwrap_or(u64::MAX));
+        self.set_position_state(leg.dir, leg.target, rem, braking);
+        Some(n)
+    }
+
+    /// Up by ACC towards MAX_SPEED, braking starts where the distance run
+    /// plus the braking distance reaches the target. `b`: the braking
+    /// distance at the present speed (for a cruise when ACC is 0).
+    fn accelerate_position(&mut self, leg: Leg, b: Option<u128>, avail: u64) -> Option<u64> {
+        let v = self.v;
+        let vf = self.floor();
+        let vmax = self.vmax();
+        let d = self.dec();
+        let a = self.acc();
+        if a == 0 {
+            return self.cruise_position(leg.dir, leg.target, leg.remaining, leg.r, b, avail);
+        }
+        let n1 = (vmax - v) / a;
+        if n1 == 0 {
+            self.v = vmax;
+            return Some(0);
+        }
+        if avail == 0 {
+            return None;
+        }
+        let n = n1.min(avail);
+        let trigger = |j: u64| {
+            let moved = s_up(v, a, j);
+            match brake_dist(v + a * j, vf, d) {
+                None => true,
+                Some(bd) => leg.reaches(moved.saturating_add(bd)),
+            }
+        };
+        if let Some(j) = first_true(1, n, trigger) {
+            if leg.reaches(s_up(v, a, j)) {
+                self.land(leg.dir, leg.remaining);
+            } else {
+                let steps = self.ramp_up(a, j);
+                let rem = leg
+                    .remaining
+                    .saturating_sub(u64::try_from(steps).unwrap_or(u64::MAX));
+                self.set_position_state(leg.dir, leg.target, rem, true);
+            }
+            return Some(j);
+        }
+        let steps = self.ramp_up(a, n);
+        let rem = leg
+            .remaining
+            .saturating_sub(u64::try_from(steps).unwrap_or(u64::MAX));
+        self.set_position_state(leg.dir, leg.target, rem, false);
+        Some(n)
     }
 
     /// Constant speed towards the target. `brake`: braking distance at this

@@ -118,41 +118,13 @@ impl Powerstep01 {
     }
 
     pub(super) fn execute(&mut self, cmd: Command) {
-        // Motion and stop commands switch the bridges on.
-        let enables_bridges = matches!(
-            cmd,
-            Command::Run(..)
-                | Command::StepClock(_)
-                | Command::Move(..)
-                | Command::GoTo(_)
-                | Command::GoToDir(..)
-                | Command::GoUntil(..)
-                | Command::ReleaseSw(..)
-                | Command::GoHome
-                | Command::GoMark
-                | Command::SoftStop
-                | Command::HardStop
-        );
-        if enables_bridges && self.bridges_locked() {
+        if enables_bridges(&cmd) && self.bridges_locked() {
             self.refuse();
             return;
         }
         match cmd {
             Command::Nop => {}
-            Command::SetParam(r, v) => {
-                let address = vocab::address(r);
-                let allowed = match datasheet::register(address).map(|s| s.access) {
-                    None | Some(Access::ReadOnly) => false,
-                    Some(Access::Always) => true,
-                    Some(Access::WhenStopped) => self.is_stopped(),
-                    Some(Access::WhenHiZ) => self.hiz,
-                };
-                if allowed {
-                    self.write_reg(address, v);
-                } else {
-                    self.refuse();
-                }
-            }
+            Command::SetParam(r, v) => self.set_param(r, v),
             Command::GetParam(r) => {
                 let address = vocab::address(r);
                 let v = self.register_at(address);
@@ -164,69 +136,17 @@ impl Powerstep01 {
                 self.respond(u32::from(s), 2);
                 self.clear_latched();
             }
-            Command::Run(dir, spd) => {
-                self.enable_bridges();
-                self.motion = Motion::Speed {
-                    dir,
-                    spd: u64::from(spd) << 12,
-                    kind: SpeedKind::Run,
-                };
-            }
-            Command::StepClock(dir) => {
-                if !self.is_stopped() {
-                    self.refuse();
-                    return;
-                }
-                self.enable_bridges();
-                self.stck_mod = true;
-                self.motion = Motion::Idle;
-                self.v = 0;
-                if self.dir != dir {
-                    self.frac = 0;
-                }
-                self.dir = dir;
-            }
-            Command::Move(dir, n) => {
-                if !self.is_stopped() {
-                    self.refuse();
-                    return;
-                }
-                self.enable_bridges();
-                let n = u64::from(n & POS_MASK);
-                let pos = self.abs_raw();
-                let target = match dir {
-                    Direction::Forward => pos.wrapping_add(n as u32),
-                    Direction::Reverse => pos.wrapping_sub(n as u32),
-                } & POS_MASK;
-                self.start_position(dir, target, n);
-            }
+            Command::Run(dir, spd) => self.run_at(dir, spd, SpeedKind::Run),
+            Command::GoUntil(act, dir, spd) => self.run_at(dir, spd, SpeedKind::GoUntil(act)),
+            Command::ReleaseSw(act, dir) => self.release_sw(act, dir),
+            Command::StepClock(dir) => self.step_clock(dir),
+            Command::Move(dir, n) => self.move_by(dir, n),
             Command::GoTo(p) => self.go_to(None, wrap_22(p)),
             Command::GoToDir(dir, p) => self.go_to(Some(dir), wrap_22(p)),
             Command::GoHome => self.go_to(None, 0),
             Command::GoMark => {
                 let mark = self.reg(addr::MARK);
                 self.go_to(None, mark)
-            }
-            Command::GoUntil(act, dir, spd) => {
-                self.enable_bridges();
-                self.motion = Motion::Speed {
-                    dir,
-                    spd: u64::from(spd) << 12,
-                    kind: SpeedKind::GoUntil(act),
-                };
-            }
-            Command::ReleaseSw(act, dir) => {
-                self.enable_bridges();
-                if !self.sw_closed {
-                    self.apply_act(act);
-                    self.stop_now();
-                } else {
-                    self.motion = Motion::Speed {
-                        dir,
-                        spd: RELEASE_SW_SPEED,
-                        kind: SpeedKind::ReleaseSw(act),
-                    };
-                }
             }
             Command::ResetPos => {
                 self.set_reg(addr::ABS_POS, 0);
@@ -257,6 +177,80 @@ impl Powerstep01 {
                 self.hiz = true;
             }
         }
+    }
+
+    /// SetParam: written if the register's access class allows it now.
+    fn set_param(&mut self, r: Register, v: u32) {
+        let address = vocab::address(r);
+        let allowed = match datasheet::register(address).map(|s| s.access) {
+            None | Some(Access::ReadOnly) => false,
+            Some(Access::Always) => true,
+            Some(Access::WhenStopped) => self.is_stopped(),
+            Some(Access::WhenHiZ) => self.hiz,
+        };
+        if allowed {
+            self.write_reg(address, v);
+        } else {
+            self.refuse();
+        }
+    }
+
+    /// Run and GoUntil: constant speed `spd` (steps/tick, 2^-28) towards `dir`.
+    fn run_at(&mut self, dir: Direction, spd: u32, kind: SpeedKind) {
+        self.enable_bridges();
+        self.motion = Motion::Speed {
+            dir,
+            spd: u64::from(spd) << 12,
+            kind,
+        };
+    }
+
+    /// ReleaseSW: at the release speed until the switch opens (at once if
+    /// it is open).
+    fn release_sw(&mut self, act: SwitchAction, dir: Direction) {
+        self.enable_bridges();
+        if !self.sw_closed {
+            self.apply_act(act);
+            self.stop_now();
+        } else {
+            self.motion = Motion::Speed {
+                dir,
+                spd: RELEASE_SW_SPEED,
+                kind: SpeedKind::ReleaseSw(act),
+            };
+        }
+    }
+
+    /// StepClock: refused unless stopped; the STCK pin then steps the motor.
+    fn step_clock(&mut self, dir: Direction) {
+        if !self.is_stopped() {
+            self.refuse();
+            return;
+        }
+        self.enable_bridges();
+        self.stck_mod = true;
+        self.motion = Motion::Idle;
+        self.v = 0;
+        if self.dir != dir {
+            self.frac = 0;
+        }
+        self.dir = dir;
+    }
+
+    /// Move: `n` microsteps towards `dir`; refused unless stopped.
+    fn move_by(&mut self, dir: Direction, n: u32) {
+        if !self.is_stopped() {
+            self.refuse();
+            return;
+        }
+        self.enable_bridges();
+        let n = u64::from(n & POS_MASK);
+        let pos = self.abs_raw();
+        let target = match dir {
+            Direction::Forward => pos.wrapping_add(n as u32),
+            Direction::Reverse => pos.wrapping_sub(n as u32),
+        } & POS_MASK;
+        self.start_position(dir, target, n);
     }
 
     /// GoTo family: refused while BUSY; `dir` forces the direction.
@@ -324,4 +318,23 @@ impl Powerstep01 {
         self.stall = false;
         self.th_latched = self.th_cond;
     }
+}
+
+/// Motion and stop commands switch the bridges on (and are refused while a
+/// fault keeps them off).
+fn enables_bridges(cmd: &Command) -> bool {
+    matches!(
+        cmd,
+        Command::Run(..)
+            | Command::StepClock(_)
+            | Command::Move(..)
+            | Command::GoTo(_)
+            | Command::GoToDir(..)
+            | Command::GoUntil(..)
+            | Command::ReleaseSw(..)
+            | Command::GoHome
+            | Command::GoMark
+            | Command::SoftStop
+            | Command::HardStop
+    )
 }

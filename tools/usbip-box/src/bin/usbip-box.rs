@@ -115,9 +115,10 @@ fn main() {
             log(format!("detached: {why}"));
         }
         server.info_mut().configuration_value = u8::from(pbox.configured());
-        let lag_ms = now_us / 1000 - pbox.clock.now_ms().min(now_us / 1000);
-        if lag_ms > LAG_WARN_MS && now_us / 1000 >= warned_at + 1000 {
-            warned_at = now_us / 1000;
+        let now_ms = now_us / 1000;
+        let lag_ms = now_ms.saturating_sub(pbox.clock.now_ms());
+        if lag_ms > LAG_WARN_MS && now_ms >= warned_at.saturating_add(1000) {
+            warned_at = now_ms;
             log(format!("the control loop is {lag_ms} ms behind real time"));
         }
         if ticks < MAX_TICKS_PER_TURN {

@@ -53,6 +53,13 @@ fn ok(c: &mut Checks, args: &Args, argv: &[&str]) -> Result<Value, String> {
 }
 
 pub fn run(c: &mut Checks, args: &Args) -> Result<(), String> {
+    reads(c, args)?;
+    moves(c, args)?;
+    settings(c, args)
+}
+
+/// scan, info, status: one device, 4 axes at rest at 0.
+fn reads(c: &mut Checks, args: &Args) -> Result<(), String> {
     let j = ok(c, args, &["scan"])?;
     let found = j["usb"].as_array().cloned().unwrap_or_default();
     c.eq("stepctl scan: one USB device", found.len(), 1);
@@ -90,7 +97,11 @@ pub fn run(c: &mut Checks, args: &Args) -> Result<(), String> {
         st.join(" "),
         "1:0:idle 2:0:idle 3:0:idle 4:0:idle".to_string(),
     );
+    Ok(())
+}
 
+/// move (waits) and jog on axis 1.
+fn moves(c: &mut Checks, args: &Args) -> Result<(), String> {
     let t0 = Instant::now();
     let j = ok(
         c,
@@ -113,7 +124,12 @@ pub fn run(c: &mut Checks, args: &Args) -> Result<(), String> {
     );
     let j = ok(c, args, &["jog", "1", "-500"])?;
     c.eq("stepctl jog 1 -500", j["position"].as_i64(), Some(2500));
+    Ok(())
+}
 
+/// settings export → change → import --save → read back; again writes
+/// nothing; a value out of range is refused before sending.
+fn settings(c: &mut Checks, args: &Args) -> Result<(), String> {
     let file = format!("{}/usb-box.toml", args.work);
     let changed = format!("{}/usb-changed.toml", args.work);
     ok(c, args, &["settings", "export", &file])?;
@@ -123,25 +139,7 @@ pub fn run(c: &mut Checks, args: &Args) -> Result<(), String> {
         text.lines().any(|l| l == "max_speed_steps_per_s = 2000"),
         format!("{} axes", text.matches("[[axis]]").count()),
     );
-    // Axis 2: max speed 2500, limit 70 °C, 1.2 A; axis 1: OCD_TH 12; the
-    // Modbus watchdog on (as scripts/stepctl-e2e changes them).
-    let mut axis = 0;
-    let mut out = Vec::new();
-    for l in text.lines() {
-        if l == "[[axis]]" {
-            axis += 1;
-        }
-        let l = match (axis, l) {
-            (2, l) if l.starts_with("max_speed_steps_per_s =") => "max_speed_steps_per_s = 2500",
-            (2, l) if l.starts_with("temperature_limit_c =") => "temperature_limit_c = 70",
-            (2, l) if l.starts_with("full_scale_current_a =") => "full_scale_current_a = 1.2",
-            (1, l) if l.starts_with("OCD_TH =") => "OCD_TH = 12",
-            (_, l) if l.starts_with("modbus_timeout_ms =") => "modbus_timeout_ms = 60000",
-            (_, l) => l,
-        };
-        out.push(l);
-    }
-    std::fs::write(&changed, out.join("\n") + "\n").map_err(|e| format!("{changed}: {e}"))?;
+    std::fs::write(&changed, changed_settings(&text)).map_err(|e| format!("{changed}: {e}"))?;
     let j = ok(c, args, &["settings", "import", &changed, "--save"])?;
     c.eq(
         "stepctl settings import --save: 5 written, saved",
@@ -175,4 +173,27 @@ pub fn run(c: &mut Checks, args: &Args) -> Result<(), String> {
         r.text.lines().last().unwrap_or(""),
     );
     Ok(())
+}
+
+/// The exported file with axis 2's max speed 2500, limit 70 °C and 1.2 A,
+/// axis 1's OCD_TH 12 and the Modbus watchdog on (as scripts/stepctl-e2e
+/// changes them).
+fn changed_settings(text: &str) -> String {
+    let mut axis = 0;
+    let mut out = Vec::new();
+    for l in text.lines() {
+        if l == "[[axis]]" {
+            axis += 1;
+        }
+        let l = match (axis, l) {
+            (2, l) if l.starts_with("max_speed_steps_per_s =") => "max_speed_steps_per_s = 2500",
+            (2, l) if l.starts_with("temperature_limit_c =") => "temperature_limit_c = 70",
+            (2, l) if l.starts_with("full_scale_current_a =") => "full_scale_current_a = 1.2",
+            (1, l) if l.starts_with("OCD_TH =") => "OCD_TH = 12",
+            (_, l) if l.starts_with("modbus_timeout_ms =") => "modbus_timeout_ms = 60000",
+            (_, l) => l,
+        };
+        out.push(l);
+    }
+    out.join("\n") + "\n"
 }
