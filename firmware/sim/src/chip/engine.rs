@@ -1,6 +1,13 @@
 //! The motion engine: speed and position integrated per 250 ns chip tick in
 //! closed form, exactly, independent of how time is sliced.
 
+// The motion engine's arithmetic is on register-bounded values in u64/u128
+// (speeds ≤ 20 bits, ACC/DEC ≤ 12 bits, tick counts): no sum or product
+// comes near the type's range; every divisor is checked non-zero first (a
+// chip with ACC or DEC 0 cruises) and subtractions follow the comparison
+// that orders them.
+#![allow(clippy::arithmetic_side_effects)]
+
 use super::*;
 
 /// Distance in microsteps from `from` to `to` going in `dir` (22-bit wrap).

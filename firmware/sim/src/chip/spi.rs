@@ -66,7 +66,7 @@ impl Powerstep01 {
                 .get(usize::from(self.resp_next))
                 .copied()
                 .unwrap_or(0);
-            self.resp_next += 1;
+            self.resp_next = self.resp_next.saturating_add(1);
         } else {
             self.out = 0;
         }
