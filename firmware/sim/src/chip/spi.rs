@@ -75,7 +75,7 @@ impl Powerstep01 {
     pub(super) fn respond(&mut self, value: u32, len: u8) {
         let len = len.clamp(1, 3);
         let be = value.to_be_bytes();
-        let start = 4 - usize::from(len);
+        let start = 4usize.saturating_sub(usize::from(len));
         for (dst, src) in self.resp.iter_mut().zip(be.iter().skip(start)) {
             *dst = *src;
         }
