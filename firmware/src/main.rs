@@ -349,7 +349,7 @@ mod app {
         );
         // `start` asserts a whole number of cycles per tick: 168 MHz is.
         let systick_hz = platform::systick_hz(&rcc);
-        Mono::start(syst, systick_hz - systick_hz % clock::MONO_HZ);
+        Mono::start(syst, systick_hz.saturating_sub(systick_hz % clock::MONO_HZ));
         platform::enable_stopwatch(dcb, dwt);
         let boot = Boot {
             handoff,

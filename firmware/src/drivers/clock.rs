@@ -54,6 +54,8 @@ pub fn now_us() -> u64 {
         if before == after {
             let reload = SYST::get_reload();
             let elapsed = u64::from(reload.saturating_sub(current));
+            // elapsed ≤ reload < 2^24: the product and the sum stay in u64.
+            #[allow(clippy::arithmetic_side_effects)]
             let sub_us = (elapsed * US_PER_TICK / (u64::from(reload) + 1)).min(US_PER_TICK - 1);
             return before.saturating_mul(US_PER_TICK).saturating_add(sub_us);
         }

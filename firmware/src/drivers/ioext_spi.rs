@@ -211,9 +211,11 @@ impl IoExtHw for IoExtRegs {
             Target::RxBytes => self.bufs.rx.as_ptr() as usize as u32,
             Target::MosiTable => self.bufs.mosi_bsrr.as_ptr() as usize as u32,
             Target::Samples => self.bufs.samples.as_ptr() as usize as u32,
-            Target::SpiDr => pac::SPI2::ptr() as usize as u32 + SPI_DR,
-            Target::GpioBsrr => gpio + GPIO_BSRR,
-            Target::GpioIdr => gpio + GPIO_IDR,
+            // Register offsets within a peripheral's block: far from the
+            // top of the address space.
+            Target::SpiDr => (pac::SPI2::ptr() as usize as u32).wrapping_add(SPI_DR),
+            Target::GpioBsrr => gpio.wrapping_add(GPIO_BSRR),
+            Target::GpioIdr => gpio.wrapping_add(GPIO_IDR),
         }
     }
 }

@@ -97,9 +97,9 @@ pub fn jump_to_rom_bootloader(rcc: &pac::RCC, syscfg: &pac::SYSCFG) -> ! {
     #[allow(unsafe_code)]
     unsafe {
         let nvic = &*cortex_m::peripheral::NVIC::PTR;
-        for i in 0..nvic.icer.len() {
-            nvic.icer[i].write(u32::MAX);
-            nvic.icpr[i].write(u32::MAX);
+        for (icer, icpr) in nvic.icer.iter().zip(nvic.icpr.iter()) {
+            icer.write(u32::MAX);
+            icpr.write(u32::MAX);
         }
     }
     // SysTick off (RTIC has not started it yet, but be sure), and the vector

@@ -196,7 +196,7 @@ impl TickTimer {
         tim.psc().write(|w| w.psc().set(0));
         self.next = tim.cnt().read().bits().wrapping_add(period);
         self.period = period;
-        tim.arr().write(|w| w.arr().set(period - 1));
+        tim.arr().write(|w| w.arr().set(period.saturating_sub(1)));
         tim.dier().write(|w| w.uie().set_bit());
         tim.cr1().write(|w| w.cen().set_bit());
         Ok(())
@@ -229,7 +229,7 @@ impl TickTimer {
         // interrupt, the deadline stands).
         let late = now.wrapping_sub(self.next);
         if late < 1 << 31 {
-            let missed = late / self.period;
+            let missed = late.checked_div(self.period).unwrap_or(0);
             self.next = self
                 .next
                 .wrapping_add(missed.wrapping_add(1).wrapping_mul(self.period));
@@ -500,7 +500,7 @@ impl IoExtDriver {
             });
             if h.sample {
                 rx.set(k, miso);
-                k += 1;
+                k = k.saturating_add(1);
             }
         }
         rx
@@ -552,6 +552,8 @@ impl Analog {
 /// The ADC counts of a motor supply of `mv` behind the ÷20 divider, at the
 /// VDDA that `vrefint` counts of VREFINT (1.21 V) mean: pin µV · vrefint /
 /// 1.21 V, rounded, at most full scale.
+// u32 and u16 inputs widened to u64: no overflow.
+#[allow(clippy::arithmetic_side_effects)]
 fn supply_counts(mv: u32, vrefint: u16) -> u16 {
     let pin_uv = u64::from(mv) * 1000 / 20;
     let counts = (pin_uv * u64::from(vrefint) + 605_000) / 1_210_000;
@@ -600,7 +602,7 @@ pub fn measure_us(_sysclk_hz: u32, f: impl FnOnce()) -> u64 {
     let centiseconds = || semihosting::sys::arm_compat::sys_clock().unwrap_or(0) as u64;
     let start = centiseconds();
     f();
-    centiseconds().saturating_sub(start) * 10_000
+    centiseconds().saturating_sub(start).saturating_mul(10_000)
 }
 
 /// Any HardFault (including the panic handler's `udf` after its message)
@@ -680,7 +682,9 @@ pub const TICK_NS_PER_CHIP: u64 = 45_000;
 /// [`TICK_NS_FIXED`] + [`TICK_NS_PER_CHIP`] per chip (the board's is
 /// `rate::tick_need_ns`, SPI bytes).
 pub fn tick_need_ns(chips: usize) -> u64 {
-    TICK_NS_FIXED + TICK_NS_PER_CHIP * chips as u64
+    TICK_NS_PER_CHIP
+        .saturating_mul(chips as u64)
+        .saturating_add(TICK_NS_FIXED)
 }
 
 /// The idle loop's wait: `wfi`. QEMU's CPU then sleeps until the next

@@ -104,7 +104,7 @@ impl Console {
                 _ => {
                     if let Some(slot) = self.line.get_mut(self.len) {
                         *slot = byte;
-                        self.len += 1;
+                        self.len = self.len.saturating_add(1);
                     }
                 }
             }

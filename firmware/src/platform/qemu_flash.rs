@@ -82,8 +82,8 @@ impl SettingsFlash {
         let mut chunk = [0u8; FLASH_SECTOR];
         let mut done = 0;
         while done < len {
-            let n = (len - done).min(FLASH_SECTOR);
-            let at = start + done;
+            let n = len.saturating_sub(done).min(FLASH_SECTOR);
+            let at = start.saturating_add(done);
             let buf = chunk.get_mut(..n).ok_or(SettingsFlashError::HostFile)?;
             self.ram
                 .read(at as u32, buf)
@@ -91,7 +91,7 @@ impl SettingsFlash {
             file.seek(SeekFrom::Start(at as u64))
                 .and_then(|_| file.write_all(buf))
                 .map_err(|_| SettingsFlashError::HostFile)?;
-            done += n;
+            done = done.saturating_add(n);
         }
         Ok(())
     }
@@ -153,9 +153,9 @@ pub fn settings_flash(flash: pac::FLASH) -> SettingsFlash {
     let name = path.to_str().unwrap_or("?");
     match File::options().read(true).write(true).open(path) {
         Ok(mut file) => {
-            let mut got = 0;
+            let mut got: usize = 0;
             for sector in flash.ram.sectors_mut() {
-                got += read_up_to(&mut file, sector);
+                got = got.saturating_add(read_up_to(&mut file, sector));
             }
             defmt::info!(
                 "settings flash: host file {=str} ({=usize} of {=usize} bytes read)",
@@ -198,7 +198,7 @@ fn read_up_to(file: &mut File, buf: &mut [u8]) -> usize {
     while let Some(rest) = buf.get_mut(got..).filter(|r| !r.is_empty()) {
         match file.read(rest) {
             Ok(0) | Err(_) => break,
-            Ok(n) => got += n,
+            Ok(n) => got = got.saturating_add(n),
         }
     }
     got
@@ -217,7 +217,7 @@ fn flash_path_with<'a>(buf: &'a mut [u8; PATH_MAX + 1], suffix: &[u8]) -> Option
         .filter_map(Result::ok)
         .find_map(|arg| arg.strip_prefix("flash="))?
         .as_bytes();
-    let len = path.len() + suffix.len();
+    let len = path.len().saturating_add(suffix.len());
     if path.is_empty() || path.contains(&0) || len > PATH_MAX {
         return None;
     }

@@ -194,7 +194,10 @@ pub fn measure_us(sysclk_hz: u32, f: impl FnOnce()) -> u64 {
     let start = cortex_m::peripheral::DWT::cycle_count();
     f();
     let cycles = cortex_m::peripheral::DWT::cycle_count().wrapping_sub(start);
-    u64::from(cycles) * 1_000_000 / u64::from(sysclk_hz.max(1))
+    u64::from(cycles)
+        .saturating_mul(1_000_000)
+        .checked_div(u64::from(sysclk_hz))
+        .unwrap_or(0)
 }
 
 /// HardFault: chips off, then wait for the watchdog's reset (within the
