@@ -235,16 +235,8 @@ mod app {
             dp.GPIOC.split(&mut rcc),
         );
         let chain_pins = (pins.chain_sck, pins.chain_miso, pins.chain_mosi);
-        let bus = platform::chain_driver(
-            dp.SPI1,
-            chain_pins,
-            pins.chain_cs,
-            dp.TIM7,
-            cx.local.chain_buffers,
-            &mut rcc,
-        );
-        let mut stby = pins.chain_stby;
-        release_chain(&mut stby, boot.sysclk);
+        let chain = (dp.SPI1, dp.TIM7, chain_pins, pins.chain_cs, pins.chain_stby);
+        let (bus, stby) = start_chain(chain, cx.local.chain_buffers, &mut rcc, boot.sysclk);
 
         let mut store = Store::new(platform::settings_flash(dp.FLASH));
         let uid = platform::unique_id();
@@ -252,12 +244,8 @@ mod app {
         // Connects at once; the host's traffic waits for the end of `init`.
         let otg = (dp.OTG_FS_GLOBAL, dp.OTG_FS_DEVICE, dp.OTG_FS_PWRCLK);
         let usb = platform::start_usb(otg, (pins.usb_dm, pins.usb_dp), &rcc, uid);
-        let i2c = start_i2c(
-            dp.I2C1,
-            (pins.host_i2c_scl, pins.host_i2c_sda),
-            &bridge,
-            &mut rcc,
-        );
+        let i2c_pins = (pins.host_i2c_scl, pins.host_i2c_sda);
+        let i2c = start_i2c(dp.I2C1, i2c_pins, &bridge, &mut rcc);
         let modbus_pins = (pins.modbus_tx, pins.modbus_rx, pins.modbus_de);
         let (rs485, timing) = start_modbus(dp.USART2, modbus_pins, &bridge, &mut rcc);
         let ioext_pins = (pins.ioext_sck, pins.ioext_miso, pins.ioext_mosi);
@@ -359,12 +347,31 @@ mod app {
         (rcc, boot)
     }
 
-    /// Start-up step 2: the chips' reset pulse (STBY/RESET is already low,
+    /// The chips' reset pulse (STBY/RESET is already low,
     /// `pins::configure`), then their wake-up time before the first byte.
     fn release_chain(stby: &mut pins::ChainStby, sysclk: u32) {
         delay_ms(RESET_PULSE_MS, sysclk);
         stby.set_high();
         delay_ms(WAKE_UP_MS, sysclk);
+    }
+
+    /// Start-up step 2: the chain's driver (SPI1, TIM7, DMA2), then the
+    /// chips out of reset.
+    fn start_chain(
+        (spi, tim, sck_miso_mosi, cs, mut stby): (
+            pins::ChainSpi,
+            pins::ChainGapTimer,
+            (pins::ChainSck, pins::ChainMiso, pins::ChainMosi),
+            pins::ChainCs,
+            pins::ChainStby,
+        ),
+        buffers: &'static mut ChainBuffers,
+        rcc: &mut stm32f4xx_hal::rcc::Rcc,
+        sysclk: u32,
+    ) -> (ChainLink, pins::ChainStby) {
+        let bus = platform::chain_driver(spi, sck_miso_mosi, cs, tim, buffers, rcc);
+        release_chain(&mut stby, sysclk);
+        (bus, stby)
     }
 
     /// Start-up step 3: the settings, chain detection and set-up, the tick
