@@ -38,7 +38,7 @@
 //! it for each blocking window, the tests (the control tick and the
 //! interrupts) reach the same driver.
 
-use std::cell::{Ref, RefCell, RefMut};
+use std::cell::RefCell;
 use std::rc::Rc;
 
 use bridge_logic::powerstep::chain::{ChainBus, Frames, MAX_DEVICES, MAX_WINDOWS};
@@ -50,7 +50,6 @@ use drivers_core::chain_spi::{
 };
 use drivers_core::dma::DmaReg;
 use drivers_core::spi::SpiReg;
-use drivers_core::Regs;
 use stepbridge_sim::SimChain;
 
 /// APB2 (SPI1) and TIM7's clock on the board, and the CPU clock.
@@ -619,7 +618,22 @@ impl ChainModel {
     }
 }
 
-impl ChainModel {
+impl ChainModel {}
+
+/// A shared handle on the model: the driver holds one, the tests another.
+pub type ChainHandle = super::Handle<ChainModel>;
+
+impl ChainHandle {
+    pub fn new(chain: SimChain) -> ChainHandle {
+        super::Handle::of(ChainModel::new(chain))
+    }
+}
+
+impl super::RegisterFile<ChainReg> for ChainModel {
+    fn tick_access(&mut self) {
+        ChainModel::tick_access(self);
+    }
+
     fn read_reg(&mut self, reg: ChainReg) -> u32 {
         match reg {
             ChainReg::Spi(SpiReg::Cr1) => self.spi_cr1,
@@ -700,38 +714,6 @@ impl ChainModel {
             }
         }
         self.dma_service();
-    }
-}
-
-/// A shared handle on the model: the driver holds one, the tests another.
-#[derive(Clone, Debug)]
-pub struct ChainHandle(Rc<RefCell<ChainModel>>);
-
-impl ChainHandle {
-    pub fn new(chain: SimChain) -> ChainHandle {
-        ChainHandle(Rc::new(RefCell::new(ChainModel::new(chain))))
-    }
-
-    pub fn model(&self) -> Ref<'_, ChainModel> {
-        self.0.borrow()
-    }
-
-    pub fn model_mut(&self) -> RefMut<'_, ChainModel> {
-        self.0.borrow_mut()
-    }
-}
-
-impl Regs<ChainReg> for ChainHandle {
-    fn read(&mut self, reg: ChainReg) -> u32 {
-        let mut m = self.0.borrow_mut();
-        m.tick_access();
-        m.read_reg(reg)
-    }
-
-    fn write(&mut self, reg: ChainReg, value: u32) {
-        let mut m = self.0.borrow_mut();
-        m.tick_access();
-        m.write_reg(reg, value);
     }
 }
 

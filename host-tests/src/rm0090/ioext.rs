@@ -49,16 +49,12 @@
 //! * The chips: one '165 and one '595 a chip, no propagation delays; the
 //!   tests use 32 of each so every one of 256 bits reaches one.
 
-use std::cell::{Ref, RefCell, RefMut};
-use std::rc::Rc;
-
 use drivers_core::dma::bits::*;
 use drivers_core::dma::{DmaReg, Flags};
 use drivers_core::ioext_spi::bits::*;
 use drivers_core::ioext_spi::{GpioReg, IoExtBuffers, IoExtHw, IoReg, Pins, Target, TimReg, MAX};
 use drivers_core::spi::bits::*;
 use drivers_core::spi::SpiReg;
-use drivers_core::Regs;
 
 mod dma;
 mod gpio;
@@ -621,6 +617,21 @@ impl IoModel {
     // ------------------------------------------------------------ GPIOB --
 
     // ------------------------------------------------------- registers --
+}
+
+/// A shared handle on the model: the driver holds one, the tests another.
+pub type IoHandle = super::Handle<IoModel>;
+
+impl IoHandle {
+    pub fn new(chips: ShiftRegs) -> IoHandle {
+        super::Handle::of(IoModel::new(chips))
+    }
+}
+
+impl super::RegisterFile<IoReg> for IoModel {
+    fn tick_access(&mut self) {
+        IoModel::tick_access(self);
+    }
 
     fn read_reg(&mut self, reg: IoReg) -> u32 {
         match reg {
@@ -675,38 +686,6 @@ impl IoModel {
             IoReg::Gpio(r) => self.gpio_write(r, value),
         }
         self.update_pins();
-    }
-}
-
-/// A shared handle on the model: the driver holds one, the test another.
-#[derive(Clone, Debug)]
-pub struct IoHandle(Rc<RefCell<IoModel>>);
-
-impl IoHandle {
-    pub fn new(chips: ShiftRegs) -> IoHandle {
-        IoHandle(Rc::new(RefCell::new(IoModel::new(chips))))
-    }
-
-    pub fn model(&self) -> Ref<'_, IoModel> {
-        self.0.borrow()
-    }
-
-    pub fn model_mut(&self) -> RefMut<'_, IoModel> {
-        self.0.borrow_mut()
-    }
-}
-
-impl Regs<IoReg> for IoHandle {
-    fn read(&mut self, reg: IoReg) -> u32 {
-        let mut m = self.0.borrow_mut();
-        m.tick_access();
-        m.read_reg(reg)
-    }
-
-    fn write(&mut self, reg: IoReg, value: u32) {
-        let mut m = self.0.borrow_mut();
-        m.tick_access();
-        m.write_reg(reg, value);
     }
 }
 

@@ -32,6 +32,11 @@
 //! flag that never clears, an interrupt that never stops) the model does
 //! too, so a wrong driver fails by its effect on the bus as well.
 
+use std::cell::{Ref, RefCell, RefMut};
+use std::rc::Rc;
+
+use drivers_core::Regs;
+
 pub mod chain_spi;
 pub mod flash;
 pub mod i2c;
@@ -39,3 +44,52 @@ pub mod i2c_rig;
 pub mod ioext;
 pub mod iwdg;
 pub mod usart;
+
+/// A shared handle on a model: the driver under test holds one, the test
+/// another. Each register access through [`Regs`] first lets one bus
+/// access's time pass in the model.
+#[derive(Debug)]
+pub struct Handle<M>(Rc<RefCell<M>>);
+
+impl<M> Clone for Handle<M> {
+    fn clone(&self) -> Self {
+        Handle(Rc::clone(&self.0))
+    }
+}
+
+impl<M> Handle<M> {
+    /// A handle on `model`.
+    pub fn of(model: M) -> Handle<M> {
+        Handle(Rc::new(RefCell::new(model)))
+    }
+
+    pub fn model(&self) -> Ref<'_, M> {
+        self.0.borrow()
+    }
+
+    pub fn model_mut(&self) -> RefMut<'_, M> {
+        self.0.borrow_mut()
+    }
+}
+
+/// A model's register file as a driver reaches it through a [`Handle`].
+pub trait RegisterFile<R> {
+    /// The time of one bus access passes.
+    fn tick_access(&mut self);
+    fn read_reg(&mut self, reg: R) -> u32;
+    fn write_reg(&mut self, reg: R, value: u32);
+}
+
+impl<R: Copy, M: RegisterFile<R>> Regs<R> for Handle<M> {
+    fn read(&mut self, reg: R) -> u32 {
+        let mut m = self.0.borrow_mut();
+        m.tick_access();
+        m.read_reg(reg)
+    }
+
+    fn write(&mut self, reg: R, value: u32) {
+        let mut m = self.0.borrow_mut();
+        m.tick_access();
+        m.write_reg(reg, value);
+    }
+}
