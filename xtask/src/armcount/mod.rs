@@ -19,6 +19,7 @@
 //! costs them, half hidden by the prefetch buffer when the miss is
 //! sequential (RM0090 §3.4.1): 2.5 cycles, else 5. Not timed tests.
 
+pub mod cost;
 pub mod cycles;
 pub mod disasm;
 
@@ -496,7 +497,7 @@ pub fn share(cycles: f64, hz: u32) -> f64 {
 // --- the three benches -----------------------------------------------------
 
 /// `cargo xtask tick-cpu`.
-pub fn tick_cpu(_args: &[String]) -> Result {
+pub fn tick_cpu(args: &[String]) -> Result {
     const N: f64 = 20_000.0;
     setup::ensure_target()?;
     let qemu = setup::qemu()?;
@@ -601,7 +602,17 @@ pub fn tick_cpu(_args: &[String]) -> Result {
             share(total, hz)
         );
     }
-    Ok(())
+    let name = if tick_hz() >= 5000 {
+        "TICK_CYCLES_8_AXES_5KHZ"
+    } else {
+        "TICK_CYCLES_8_AXES_1KHZ"
+    };
+    cost::check(name, total, write_flag(args))
+}
+
+/// `--write`: put the measurement into `rate_measured.rs` ([`cost`]).
+fn write_flag(args: &[String]) -> bool {
+    args.iter().any(|a| a == "--write")
 }
 
 /// `cargo xtask chain-cpu`: per event of a streaming batch on 8 chips (5
@@ -616,7 +627,7 @@ pub fn tick_cpu(_args: &[String]) -> Result {
 /// entry and return of every interrupt (12 + 10 cycles on the Cortex-M4 with
 /// the FPU context unused: Cortex-M4 TRM §5.5.1; tail-chaining would save
 /// some). tests/chain_spi.rs logs the real cycles on a board.
-pub fn chain_cpu(_args: &[String]) -> Result {
+pub fn chain_cpu(args: &[String]) -> Result {
     const N: u64 = 200;
     const WINDOWS: u64 = 5;
     const ENTRY_EXIT: f64 = 22.0;
@@ -685,6 +696,8 @@ pub fn chain_cpu(_args: &[String]) -> Result {
         "chain DMA driver, streaming batch of {WINDOWS} windows x 8 bytes ({N} batches; empty marker pair {cal:.0} instructions, subtracted)"
     );
     let (mut b_insn, mut b_cyc, mut i_insn, mut i_cyc) = (0.0, 0.0, 0.0, 0.0);
+    // The part in the control tick (start and hand-over).
+    let mut t_cyc = 0.0;
     for (k, name, per, isr) in events {
         let calls = (N * per) as f64;
         let insn = c.insns(k) as f64 / calls - cal;
@@ -699,6 +712,8 @@ pub fn chain_cpu(_args: &[String]) -> Result {
         if isr {
             i_insn += insn * per as f64;
             i_cyc += cyc * per as f64;
+        } else {
+            t_cyc += cyc * per as f64;
         }
     }
     println!(
@@ -712,7 +727,7 @@ pub fn chain_cpu(_args: &[String]) -> Result {
             share(b_cyc, hz)
         );
     }
-    Ok(())
+    cost::check("CHAIN_DRIVER_TICK_CYCLES", t_cyc, write_flag(args))
 }
 
 /// `cargo xtask ioext-cpu`: the I/O extension's CPU work per 256-bit
