@@ -1,5 +1,5 @@
 //! The measured cost `bridge_logic::rate` fits the tick rate to
-//! (`firmware/logic/src/rate_measured.rs`): each bench checks its figure
+//! (`firmware/logic/src/rate/measured.rs`): each bench checks its figure
 //! there and, with `--write`, puts the measurement in. A check fails when
 //! the code costs more than the file says (the rate would be fitted to a
 //! cost lower than the truth); a cost lower than the file's is reported
@@ -10,7 +10,7 @@ use std::path::PathBuf;
 use crate::util::{self, bail, Result};
 
 /// The file, from the workspace root.
-pub const FILE: &str = "firmware/logic/src/rate_measured.rs";
+pub const FILE: &str = "firmware/logic/src/rate/measured.rs";
 
 /// The value of `pub const NAME: u32 = …;` in `text`.
 pub fn value(text: &str, name: &str) -> Option<u32> {

@@ -610,7 +610,7 @@ pub fn tick_cpu(args: &[String]) -> Result {
     cost::check(name, total, write_flag(args))
 }
 
-/// `--write`: put the measurement into `rate_measured.rs` ([`cost`]).
+/// `--write`: put the measurement into `rate/measured.rs` ([`cost`]).
 fn write_flag(args: &[String]) -> bool {
     args.iter().any(|a| a == "--write")
 }

@@ -75,7 +75,6 @@ pub struct Rate {
     pub derated: bool,
 }
 
-#[path = "rate_measured.rs"]
 pub mod measured;
 
 /// CS windows of a streaming batch (a read and a Run per axis).
@@ -374,7 +373,7 @@ mod fit_tests {
 
     #[test]
     fn the_fastest_rate_of_each_chain_length_in_a_5_khz_build() {
-        // The measured cost (rate_measured.rs) on the board's bus
+        // The measured cost (rate/measured.rs) on the board's bus
         // (docs/performance.md, "the control tick", states this table).
         let hz: [u32; 8] = core::array::from_fn(|k| fit(5000, k + 1).hz);
         assert_eq!(hz, [5000, 5000, 5000, 5000, 5000, 2500, 2500, 2500]);
