@@ -25,6 +25,7 @@ pub mod drivers;
 pub mod failsafe;
 pub mod pins;
 pub mod platform;
+mod ramtext;
 
 /// The firmware's build id (diagnostics register 0x0344–45, boot log): the
 /// first 32 bits of the git commit it was built from, 0 when it was not

@@ -175,9 +175,15 @@ impl Counter {
             self.current = k;
         }
         let k = self.current;
-        let cold = self.cold.fetch_range(start, end);
+        // Code outside the flash (run from SRAM) bypasses the ART.
+        let art = crate::art::through_art(start);
+        let cold = if art {
+            self.cold.fetch_range(start, end)
+        } else {
+            Misses::default()
+        };
         let counting = k != 0;
-        let warm = if counting {
+        let warm = if counting && art {
             self.warm.fetch_range(start, end)
         } else {
             Misses::default()

@@ -575,7 +575,8 @@ pub fn tick_cpu(args: &[String]) -> Result {
         .flat_map(|t| t.calls.iter())
         .filter(|(f, _)| f.starts_with("__aeabi_"))
         .map(|(_, c)| c)
-        .sum();
+        .sum::<f64>()
+        .max(0.0);
     let core: f64 = tick.iter().map(|t| t.cycles[1]).sum();
     let flash: f64 = tick.iter().map(|t| t.flash_wait()).sum();
     let total = core + flash;
@@ -594,6 +595,19 @@ pub fn tick_cpu(args: &[String]) -> Result {
     );
     println!(
         "RESULT cycles per tick: {core:.0} core + {flash:.0} flash wait = {total:.0} ({WAIT_STATES} wait states; 0 wait states: {core:.0})"
+    );
+    // memory.x's `.ramtext`: what of the tick ran from SRAM (no ART, no
+    // wait states; fetches share the S-bus with data, not modelled).
+    let ram = c
+        .pcs
+        .iter()
+        .filter(|p| (1..=3).contains(&p.counter) && p.pc >= 0x2000_0000)
+        .map(|p| p.count)
+        .sum::<u64>() as f64
+        / N;
+    println!(
+        "RESULT run from SRAM: {ram:.0} of the {:.0} instructions per tick",
+        tick.iter().map(|t| t.raw).sum::<f64>()
     );
     for hz in RATES_HZ {
         println!(

@@ -11,9 +11,9 @@
 pub const SYSCLK_HZ: u32 = 168_000_000;
 /// Cycles of one 8-axis streaming tick (plan, profile, schedule, encode,
 /// decode, absorb), 1 kHz build (`cargo tick-cpu`).
-pub const TICK_CYCLES_8_AXES_1KHZ: u32 = 15_342;
+pub const TICK_CYCLES_8_AXES_1KHZ: u32 = 11_876;
 /// The same, 5 kHz build (`STEPBRIDGE_TICK_HZ=5000 cargo tick-cpu`).
-pub const TICK_CYCLES_8_AXES_5KHZ: u32 = 15_585;
+pub const TICK_CYCLES_8_AXES_5KHZ: u32 = 12_020;
 /// The chain driver's cycles in the control tick per streaming batch of 8
 /// chips: start and hand-over (`cargo chain-cpu`).
 pub const CHAIN_DRIVER_TICK_CYCLES: u32 = 669;
