@@ -165,6 +165,17 @@ fn braking_with(v: i64, dec: i64, m: i64) -> i128 {
     (2 * m + 1) * i128::from(v) - i128::from(dec) * m * (m + 1)
 }
 
+/// `num / d` (rounded toward zero, as `/`): by the 32-bit divide where
+/// both fit ([`divisor::div_u64_by_u32`]; the braking fit's `num` is below
+/// 2⁶⁴ and its `d` = 2k + 2 below 2³² but for extreme limits), else as
+/// `i128` (a 128-step loop on the Cortex-M4).
+fn quotient(num: i128, d: i64) -> i128 {
+    match (u64::try_from(num), u32::try_from(d)) {
+        (Ok(n), Ok(dd)) if dd > 0 => i128::from(super::divisor::div_u64_by_u32(n, dd)),
+        _ => num / i128::from(d),
+    }
+}
+
 /// Position travelled (2⁻³³ steps) if the next velocity is `w` after `v`, then
 /// braking to zero: `v + w + 2·D(w)`. Increasing in `w`.
 fn reach(v: i64, w: i64, dec: i64) -> i128 {
@@ -498,7 +509,7 @@ impl Profile {
         let k = lo;
         // Inside segment k: reach = v + (2k+2)·w − dec·k(k+1).
         let num = r - i128::from(v) + i128::from(dec) * i128::from(k) * i128::from(k + 1);
-        let w = num / i128::from(2 * k + 2);
+        let w = quotient(num, 2 * k + 2);
         let seg_top = i128::from(dec) * i128::from(k + 1) - 1;
         let w = w.min(seg_top).min(i128::from(upper)).max(i128::from(lower));
         w as i64

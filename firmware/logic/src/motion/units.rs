@@ -34,6 +34,20 @@ pub const BACKSTOP_EXTRA: u64 = 16;
 /// Largest MAX_SPEED register value (10 bit).
 const MAX_SPEED_REG_MAX: u64 = 0x3FF;
 
+/// `(x >> shift) as i64` (the low 64 bits of the arithmetic shift), in
+/// 64-bit halves for `1 ≤ shift ≤ 63`: an `i128` shift by a variable
+/// amount is a long sequence on a 32-bit core, and the control tick does
+/// one per axis (the profile's position in physical microsteps).
+#[inline]
+pub const fn shr_i128_to_i64(x: i128, shift: u32) -> i64 {
+    if shift == 0 || shift >= 64 {
+        return (x >> (shift & 127)) as i64;
+    }
+    let lo = x as u64;
+    let hi = (x >> 64) as u64;
+    ((lo >> shift) | (hi << (64 - shift))) as i64
+}
+
 /// Logical position → physical microsteps (floor when the logical step is finer).
 pub const fn logical_to_physical(pos: i64, logical_shift: u8, step: StepSel) -> i64 {
     let s = step.shift() as i64;
@@ -597,6 +611,32 @@ mod tests {
         // 15 625² / (2 · 5 120) = 23 842 full steps.
         let r = StopCap::new(65_535, 4, StepSel::OneTwentyEighth).room();
         assert!((r - 23_842 * 128).abs() < 128, "{r}");
+    }
+
+    #[test]
+    fn the_halves_shift_equals_the_i128_shift() {
+        let xs = [
+            0i128,
+            1,
+            -1,
+            (1 << 33) - 1,
+            -(1 << 33),
+            i128::from(i64::MAX) << 33,
+            i128::from(i64::MIN) << 33,
+            0x1234_5678_9ABC_DEF0_1357_9BDF_0246_8ACE,
+            -0x1234_5678_9ABC_DEF0_1357_9BDF_0246_8ACE,
+            i128::MAX,
+            i128::MIN,
+        ];
+        for x in xs {
+            for shift in 0..=127 {
+                assert_eq!(
+                    shr_i128_to_i64(x, shift),
+                    (x >> shift) as i64,
+                    "{x} >> {shift}"
+                );
+            }
+        }
     }
 
     #[test]
