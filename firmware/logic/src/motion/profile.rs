@@ -73,6 +73,9 @@ pub enum Mode {
     Velocity(i64),
 }
 
+/// Limits in internal units: (vmax, acc, dec).
+type Internal = (i64, i64, i64);
+
 /// The trapezoidal profile generator of one axis.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Profile {
@@ -95,6 +98,12 @@ pub struct Profile {
     /// The last braking distance computed at `dec`: (speed, distance). While
     /// cruising the same one is asked for every tick.
     memo: (i64, i128),
+    /// The internal limits (vmax, acc, dec) of the last two limits set
+    /// (a move's start and its stop alternate between two; the
+    /// conversions are 128-bit divisions).
+    conv: [Option<(Limits, Internal)>; 2],
+    /// The divisor of the deceleration used before `dec_div`.
+    prev_div: Divisor,
 }
 
 /// Steps/s → 2⁻³² steps/tick, rounded down (never above the limit).
@@ -197,6 +206,8 @@ impl Profile {
             dec_limit: 1,
             dec_div: Divisor::new(1),
             memo: (0, 0),
+            conv: [None, None],
+            prev_div: Divisor::new(1),
         };
         p.set_limits(limits);
         p
@@ -211,7 +222,14 @@ impl Profile {
     fn set_dec(&mut self, dec: i64) {
         if dec != self.dec || self.dec_div.get() != dec.unsigned_abs() {
             self.dec = dec;
-            self.dec_div = Divisor::new(dec.unsigned_abs());
+            let d = dec.unsigned_abs();
+            let old = self.dec_div;
+            self.dec_div = if self.prev_div.get() == d {
+                self.prev_div
+            } else {
+                Divisor::new(d)
+            };
+            self.prev_div = old;
             self.memo = (0, 0);
         }
     }
@@ -239,9 +257,9 @@ impl Profile {
     /// (module doc).
     pub fn set_limits(&mut self, limits: Limits) {
         self.limits = limits;
-        self.vmax = speed_to_internal(limits.max_speed.max(1), self.tick_us).max(1);
-        self.acc = acc_to_internal(limits.acc.max(1), self.tick_us);
-        let dec = acc_to_internal(limits.dec.max(1), self.tick_us);
+        let (vmax, acc, dec) = self.internal(limits);
+        self.vmax = vmax;
+        self.acc = acc;
         let d = if dec < self.dec {
             self.stoppable_dec(dec)
         } else {
@@ -249,6 +267,24 @@ impl Profile {
         };
         self.set_dec(d);
         self.dec_limit = dec;
+    }
+
+    /// `limits` in internal units: (vmax, acc, dec), remembered for the last
+    /// two limits (module doc of [`Profile`]'s fields).
+    fn internal(&mut self, limits: Limits) -> Internal {
+        let [last, before] = self.conv;
+        for (l, v) in [last, before].into_iter().flatten() {
+            if l == limits {
+                return v;
+            }
+        }
+        let v = (
+            speed_to_internal(limits.max_speed.max(1), self.tick_us).max(1),
+            acc_to_internal(limits.acc.max(1), self.tick_us),
+            acc_to_internal(limits.dec.max(1), self.tick_us),
+        );
+        self.conv = [Some((limits, v)), last];
+        v
     }
 
     /// The smallest deceleration in `[lower, self.dec]` with which the axis

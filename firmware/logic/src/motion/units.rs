@@ -325,15 +325,14 @@ pub const fn backstop_reg(v: u32, logical_shift: u8) -> u32 {
 const fn ramp_reg_exact(a: u32, logical_shift: u8) -> u64 {
     let full = full_q16(a, logical_shift);
     let fast = full * RAMP_HEADROOM_NUM / RAMP_HEADROOM_DEN;
-    // ACC = a · 2⁴⁰ / (4·10⁶)² = a_q16 · 2²⁴ / 1.6·10¹³ (units::acc_from_steps_per_s2)
-    let den: u128 = 16_000_000_000_000;
-    let reg = (((fast as u128) << 24) + den / 2) / den;
+    // ACC = a · 2⁴⁰ / (4·10⁶)² = a_q16 · 2²⁴ / 1.6·10¹³ (units::acc_from_steps_per_s2),
+    // rounded: ⌊(fast · 2²⁴ + 8·10¹²) / (2¹⁶ · 244 140 625)⌋. The 2¹⁶ first
+    // (exact: fast · 2²⁴ is a multiple of it, 8·10¹² / 2¹⁶ = 122 070 312.5),
+    // then the 32-bit divisor by the core's divide: fast < 2⁵⁰, so
+    // fast · 2⁸ fits 64 bits (a 128-bit division is a long loop on the M4).
+    let reg = super::divisor::div_u64_by_u32((fast << 8) + 122_070_312, 244_140_625);
     let reg = if reg == 0 { 1 } else { reg };
-    if reg > u64::MAX as u128 {
-        u64::MAX
-    } else {
-        reg as u64 + 1
-    }
+    reg.saturating_add(1)
 }
 
 /// The chip's ACC/DEC register for a profile acceleration: capped at the
@@ -611,6 +610,30 @@ mod tests {
         // 15 625² / (2 · 5 120) = 23 842 full steps.
         let r = StopCap::new(65_535, 4, StepSel::OneTwentyEighth).room();
         assert!((r - 23_842 * 128).abs() < 128, "{r}");
+    }
+
+    /// The 128-bit form `ramp_reg_exact` had.
+    fn ramp_reg_by_u128(a: u32, logical_shift: u8) -> u64 {
+        let fast = full_q16(a, logical_shift) * RAMP_HEADROOM_NUM / RAMP_HEADROOM_DEN;
+        let den: u128 = 16_000_000_000_000;
+        let reg = ((u128::from(fast) << 24) + den / 2) / den;
+        u64::try_from(reg.max(1)).unwrap_or(u64::MAX - 1) + 1
+    }
+
+    #[test]
+    fn the_ramp_register_equals_the_128_bit_division() {
+        for shift in 0..=MAX_LOGICAL_SHIFT {
+            for a in (0..5_000u32)
+                .chain((0..2_000).map(|k| k * 2_147_483))
+                .chain([u32::MAX, u32::MAX - 1, 1 << 31, 65_535, 200_000])
+            {
+                assert_eq!(
+                    ramp_reg_exact(a, shift),
+                    ramp_reg_by_u128(a, shift),
+                    "{a} {shift}"
+                );
+            }
+        }
     }
 
     #[test]
