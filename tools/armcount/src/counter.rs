@@ -104,6 +104,8 @@ struct Totals {
     /// Instructions since the last epoch, and the most in any one epoch.
     since_epoch: u64,
     epoch_max: u64,
+    /// The epoch (0 = before the first epoch block) of `epoch_max`.
+    epoch_max_at: u64,
 }
 
 /// The plugin's state.
@@ -118,6 +120,8 @@ pub struct Counter {
     warm: Art,
     cold: Art,
     reported: bool,
+    /// Epoch blocks run so far.
+    epochs: u64,
 }
 
 impl Counter {
@@ -132,6 +136,7 @@ impl Counter {
             warm: Art::default(),
             cold: Art::default(),
             reported: false,
+            epochs: 0,
         }
     }
 
@@ -176,9 +181,13 @@ impl Counter {
         );
         if block.epoch {
             for t in &mut self.totals {
-                t.epoch_max = t.epoch_max.max(t.since_epoch);
+                if t.since_epoch > t.epoch_max {
+                    t.epoch_max = t.since_epoch;
+                    t.epoch_max_at = self.epochs;
+                }
                 t.since_epoch = 0;
             }
+            self.epochs += 1;
         }
         // How was the previous block left?
         if let Some((prev, ctr)) = self.previous {
@@ -261,7 +270,7 @@ impl Counter {
         for (k, t) in self.totals.iter().enumerate().skip(1) {
             let _ = writeln!(
                 s,
-                "counter {k} insns {} blocks {} lines {} warm {} {} cold {} {} epochmax {}",
+                "counter {k} insns {} blocks {} lines {} warm {} {} cold {} {} epochmax {} at {}",
                 t.insns,
                 t.blocks,
                 t.warm.lines,
@@ -269,7 +278,12 @@ impl Counter {
                 t.warm.jump,
                 t.cold.sequential,
                 t.cold.jump,
-                t.epoch_max.max(t.since_epoch)
+                t.epoch_max.max(t.since_epoch),
+                if t.since_epoch > t.epoch_max {
+                    self.epochs
+                } else {
+                    t.epoch_max_at
+                }
             );
         }
         for ((pc, k), (size, count, taken)) in per_pc {
@@ -380,7 +394,7 @@ mod tests {
         }
         let r = c.report();
         assert!(r.contains("counter 1 insns 15 "), "{r}");
-        assert!(r.contains(" epochmax 7\n"), "{r}");
+        assert!(r.contains(" epochmax 7 at 2\n"), "{r}");
     }
 
     #[test]

@@ -26,7 +26,7 @@
 //! ```text
 //! armcount-report 1
 //! counters N                          (marks given; counter 0 counts nothing)
-//! counter K insns I blocks B lines L warm S J cold S J epochmax E
+//! counter K insns I blocks B lines L warm S J cold S J epochmax E at N
 //! pc ADDR SIZE K COUNT TAKEN          (hex address; per instruction and counter)
 //! ```
 //!
@@ -35,7 +35,7 @@
 //! measured code alone, as on an otherwise idle CPU), `cold` those of one
 //! that sees every block (the bench's other code evicts lines in between).
 //! `epochmax` is the most instructions K counted within one epoch (0
-//! without `epoch=`). Code outside the flash (run from SRAM) is not
+//! without `epoch=`), in epoch N (counted from 0, before the first epoch block). Code outside the flash (run from SRAM) is not
 //! fetched through the cache and never misses. TAKEN counts the runs after which the next block did not start right
 //! after this instruction (kept for the block's last instruction only).
 
