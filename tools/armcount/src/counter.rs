@@ -122,6 +122,10 @@ pub struct Counter {
     reported: bool,
     /// Epoch blocks run so far.
     epochs: u64,
+    /// Instructions of every counter since the last epoch block, and the
+    /// most of one epoch with the epoch it was (a bench's whole tick).
+    epoch_all: u64,
+    epoch_all_max: (u64, u64),
 }
 
 impl Counter {
@@ -137,6 +141,8 @@ impl Counter {
             cold: Art::default(),
             reported: false,
             epochs: 0,
+            epoch_all: 0,
+            epoch_all_max: (0, 0),
         }
     }
 
@@ -187,6 +193,10 @@ impl Counter {
                 }
                 t.since_epoch = 0;
             }
+            if self.epoch_all > self.epoch_all_max.0 {
+                self.epoch_all_max = (self.epoch_all, self.epochs);
+            }
+            self.epoch_all = 0;
             self.epochs += 1;
         }
         // How was the previous block left?
@@ -224,6 +234,7 @@ impl Counter {
                 add(&mut t.warm, warm);
                 t.insns += n_insns;
                 t.since_epoch += n_insns;
+                self.epoch_all += n_insns;
                 t.blocks += 1;
             }
         }
@@ -278,13 +289,15 @@ impl Counter {
                 t.warm.jump,
                 t.cold.sequential,
                 t.cold.jump,
-                t.epoch_max.max(t.since_epoch),
-                if t.since_epoch > t.epoch_max {
-                    self.epochs
-                } else {
-                    t.epoch_max_at
-                }
+                t.epoch_max,
+                t.epoch_max_at
             );
+        }
+        if self.config.epoch.is_some() {
+            // Only epochs an epoch block ended (what runs after the last
+            // one is no tick).
+            let (max, at) = self.epoch_all_max;
+            let _ = writeln!(s, "epochs {} max {max} at {at}", self.epochs);
         }
         for ((pc, k), (size, count, taken)) in per_pc {
             let _ = writeln!(s, "pc {pc:x} {size} {k} {count} {taken}");
@@ -395,6 +408,8 @@ mod tests {
         let r = c.report();
         assert!(r.contains("counter 1 insns 15 "), "{r}");
         assert!(r.contains(" epochmax 7 at 2\n"), "{r}");
+        // All counters of one epoch together (here only counter 1).
+        assert!(r.contains("\nepochs 3 max 7 at 2\n"), "{r}");
     }
 
     #[test]

@@ -27,6 +27,8 @@
 //! armcount-report 1
 //! counters N                          (marks given; counter 0 counts nothing)
 //! counter K insns I blocks B lines L warm S J cold S J epochmax E at N
+//! epochs N max M at E                (with epoch=: the most instructions of all
+//!                                     counters together in one epoch, and which)
 //! pc ADDR SIZE K COUNT TAKEN          (hex address; per instruction and counter)
 //! ```
 //!
@@ -34,8 +36,9 @@
 //! sequential and jump misses of a cache that sees only counted blocks (the
 //! measured code alone, as on an otherwise idle CPU), `cold` those of one
 //! that sees every block (the bench's other code evicts lines in between).
-//! `epochmax` is the most instructions K counted within one epoch (0
-//! without `epoch=`), in epoch N (counted from 0, before the first epoch block). Code outside the flash (run from SRAM) is not
+//! `epochmax` is the most instructions K counted within one epoch that an
+//! epoch block ended (0 without `epoch=`), in epoch N (counted from 0,
+//! before the first epoch block). Code outside the flash (run from SRAM) is not
 //! fetched through the cache and never misses. TAKEN counts the runs after which the next block did not start right
 //! after this instruction (kept for the block's last instruction only).
 

@@ -70,6 +70,9 @@ pub struct PcCount {
 pub struct Counts {
     pub totals: HashMap<usize, Totals>,
     pub pcs: Vec<PcCount>,
+    /// With epochs: the most instructions of all counters in one epoch, and
+    /// which epoch (0 = before the first epoch block).
+    pub epoch_max: Option<(u64, u64)>,
 }
 
 impl Counts {
@@ -103,6 +106,7 @@ impl Counts {
                         },
                     );
                 }
+                Some(&"epochs") => c.epoch_max = Some((num(3)?, num(5)?)),
                 Some(&"pc") => {
                     let pc = f
                         .get(1)
@@ -743,6 +747,9 @@ mod tests {
         )
         .unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(e.totals[&1].epoch_max, 9);
+        let t = Counts::parse("armcount-report 1\nepochs 12 max 340 at 3\n")
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(t.epoch_max, Some((340, 3)));
         assert_eq!(
             c.pcs,
             vec![PcCount {

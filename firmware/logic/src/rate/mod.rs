@@ -377,7 +377,7 @@ mod fit_tests {
         // The measured cost (rate/measured.rs) on the board's bus
         // (docs/performance.md, "the control tick", states this table).
         let hz: [u32; 8] = core::array::from_fn(|k| fit(5000, k + 1).hz);
-        assert_eq!(hz, [5000, 5000, 5000, 5000, 2500, 2500, 2500, 2500]);
+        assert_eq!(hz, [5000, 5000, 5000, 5000, 5000, 2500, 2500, 2500]);
     }
 
     #[test]
