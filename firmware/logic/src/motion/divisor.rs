@@ -88,6 +88,28 @@ pub const fn div_u64_by_u32(n: u64, d: u32) -> u64 {
     ((q_hi as u64) << 32) | divlu(r_hi, n as u32, d) as u64
 }
 
+/// `n / d` for a divisor below 2³², exactly: long division in 32-bit
+/// limbs, each step by [`div_u64_by_u32`] (an `i128`/`u128` division is a
+/// long loop on a Cortex-M4). 0 divides as 1.
+pub const fn div_u128_by_u32(n: u128, d: u32) -> u128 {
+    if d == 0 {
+        return n;
+    }
+    let dd = d as u64;
+    let mut r = 0u64;
+    let mut q = 0u128;
+    let mut i = 4;
+    while i > 0 {
+        i -= 1;
+        // r < d < 2³²: the step's dividend fits 64 bits, its quotient 32.
+        let t = (r << 32) | ((n >> (32 * i)) as u64 & 0xFFFF_FFFF);
+        let qi = div_u64_by_u32(t, d);
+        r = t - qi * dd;
+        q |= (qi as u128) << (32 * i);
+    }
+    q
+}
+
 /// ⌊(u1·2³² + u0) / v⌋ for `u1 < v` (the quotient fits 32 bits), from
 /// 32-by-32 divisions of 16-bit digits (Hacker's Delight 9-3, `divlu2`).
 const fn divlu(u1: u32, u0: u32, v: u32) -> u32 {
@@ -227,6 +249,11 @@ mod tests {
         #[test]
         fn by_u32_equals_the_division_operator(n in any::<u64>(), d in 1u32..) {
             prop_assert_eq!(div_u64_by_u32(n, d), n / u64::from(d));
+        }
+
+        #[test]
+        fn u128_by_u32_equals_the_division_operator(n in any::<u128>(), d in 1u32..) {
+            prop_assert_eq!(div_u128_by_u32(n, d), n / u128::from(d));
         }
 
         #[test]

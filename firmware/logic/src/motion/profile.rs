@@ -41,7 +41,7 @@
 // and the property tests run the extremes.
 #![allow(clippy::arithmetic_side_effects)]
 
-use super::divisor::Divisor;
+use super::divisor::{div_u128_by_u32, Divisor};
 
 /// Velocity and acceleration fraction bits (2⁻³² steps per tick).
 const VEL_FRAC: u32 = 32;
@@ -137,7 +137,11 @@ pub const fn speed_from_internal(v: i64, tick_us: u32) -> i64 {
     if tick_us == 0 {
         return 0;
     }
-    let x = ((v as i128) * 1_000_000) / (tick_us as i128);
+    // (v · 10⁶) / tick_us toward zero, by 32-bit limbs (an i128 division
+    // is a long loop on the Cortex-M4; the control tick asks while the
+    // profile is above a lowered max speed).
+    let m = div_u128_by_u32(v.unsigned_abs() as u128 * 1_000_000, tick_us) as i128;
+    let x = if v < 0 { -m } else { m };
     let half = 1i128 << (VEL_FRAC - 1);
     if x >= 0 {
         ((x + half) >> VEL_FRAC) as i64
@@ -557,6 +561,35 @@ mod tests {
     use super::*;
 
     const MS: u32 = 1000;
+
+    #[test]
+    fn speeds_from_internal_equal_the_i128_division() {
+        let by_i128 = |v: i64, t: u32| {
+            let x = (i128::from(v) * 1_000_000) / i128::from(t);
+            let half = 1i128 << (VEL_FRAC - 1);
+            if x >= 0 {
+                ((x + half) >> VEL_FRAC) as i64
+            } else {
+                -((-x + half) >> VEL_FRAC) as i64
+            }
+        };
+        let vs = (-3_000i64..3_000)
+            .chain((0..2_000).map(|k| k * 4_611_686_018_427_387))
+            .chain((0..2_000).map(|k| -k * 4_611_686_018_427_387))
+            .chain([
+                i64::MIN,
+                i64::MIN + 1,
+                i64::MAX,
+                1 << 32,
+                -(1 << 32),
+                400 << 32,
+            ]);
+        for v in vs {
+            for t in [1u32, 7, 200, 250, 500, 1000, 2000, 65_535, u32::MAX] {
+                assert_eq!(speed_from_internal(v, t), by_i128(v, t), "{v} {t}");
+            }
+        }
+    }
 
     fn lim(max_speed: u32, acc: u32, dec: u32) -> Limits {
         Limits {
