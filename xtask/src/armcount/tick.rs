@@ -162,6 +162,11 @@ pub fn tick_cpu(args: &[String]) -> Result {
         if at <= N as u64 { "cruise" } else { "moves" },
         share(w_cyc, 5000)
     );
+    // Where issue 22 started (a5b142a, this bench's cruise workload, code
+    // in flash), to compare with the lines above (docs/performance.md).
+    println!(
+        "RESULT before (a5b142a, 1 kHz build, cruise): 9285 instructions per tick, 1161 per axis-tick, 0 64-bit divisions, ART misses 1030 + 239, cycles 13472 + 3768 flash wait = 17240, CPU 10.3 / 20.5 / 51.3 / 102.6 % at 1 / 2 / 5 / 10 kHz"
+    );
     let name = if tick_hz() >= 5000 {
         "TICK_CYCLES_8_AXES_5KHZ"
     } else {
