@@ -28,6 +28,7 @@ pub mod failsafe;
 pub mod handoff;
 pub mod pins;
 pub mod platform;
+mod ramtext;
 pub mod startup;
 
 /// The firmware's build id (diagnostics register 0x0344–45, boot log): the

@@ -424,3 +424,55 @@ fn the_bridges_chain_bus_asks_the_driver_that_runs_the_batches() {
     assert_eq!(hw.model().windows.last().unwrap().rx, rx);
     clean(&hw);
 }
+
+// ------------------------------------------- the rate fit's bus part --
+
+/// `rate::fit` fits the board's tick rate to the bus time its driver
+/// works out (`ChainSpi::timing`, the firmware asks its driver): at the
+/// board's clocks that is `rate::BOARD_BUS`, and a streaming batch of 8
+/// chips on the model (1 µs interrupt latency) is over within it.
+#[test]
+fn a_streaming_batch_takes_no_longer_than_the_timing_the_rate_is_fitted_to() {
+    use bridge_logic::powerstep::commands::Direction;
+    use bridge_logic::powerstep::registers::Register;
+    use bridge_logic::rate;
+    let (mut dma, hw) = rig(8);
+    assert_eq!(dma.timing(), rate::BOARD_BUS);
+    let mut b = Batch::new(8);
+    for d in 0..8 {
+        b.push(d, Command::GetParam(Register::AbsPos)).unwrap();
+        b.push(d, Command::Run(Direction::Forward, 1000)).unwrap();
+    }
+    let plan = Plan::new(&b).unwrap();
+    assert_eq!(plan.windows(), rate::STREAM_WINDOWS as usize);
+    let need_ns = rate::BOARD_BUS.batch_ns(rate::STREAM_WINDOWS, 8);
+    let t0 = now_us(&hw);
+    dma.start(&plan, t0).unwrap();
+    let mut rx = EMPTY;
+    let mut t = t0;
+    let took_us = loop {
+        t += 1;
+        run_until(&hw, &mut dma, t, 1000);
+        if let BatchState::Done(r) = dma.poll(now_us(&hw), &mut rx) {
+            assert!(r.is_ok());
+            break t - t0;
+        }
+        assert!(t - t0 < 1000, "batch not over after 1 ms");
+    };
+    let w: Vec<_> = hw
+        .model()
+        .windows
+        .iter()
+        .map(|w| (w.gap_ns, w.setup_ns))
+        .collect();
+    assert!(
+        took_us * 1000 <= need_ns + 1000,
+        "the batch took {took_us} us, the fit assumes {need_ns} ns; windows {w:?}"
+    );
+    // And not far less: the fit is the bus's truth, not a margin.
+    assert!(
+        took_us * 1000 + 20_000 >= need_ns,
+        "{took_us} us vs {need_ns} ns"
+    );
+    clean(&hw);
+}

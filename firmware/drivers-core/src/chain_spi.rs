@@ -259,27 +259,9 @@ impl Default for ChainBuffers {
     }
 }
 
-/// Smallest SPI baud-rate divider (2, 4, …, 256) giving at most `max_hz`,
-/// and its CR1.BR code.
-// div doubles from 2 to at most 256 and br counts those steps (≤ 7).
-#[allow(clippy::arithmetic_side_effects)]
-pub fn sck_divider(pclk_hz: u32, max_hz: u32) -> (u32, u32) {
-    let mut div = 2;
-    let mut br = 0;
-    while div < 256 && pclk_hz / div > max_hz {
-        div *= 2;
-        br += 1;
-    }
-    (div, br)
-}
-
-/// Clock cycles of `hz` for `ns` nanoseconds, rounded up.
-// A u32 × u32 product fits a u64; the divisor is a non-zero constant.
-#[allow(clippy::arithmetic_side_effects)]
-pub fn cycles(ns: u32, hz: u32) -> u32 {
-    let c = (u64::from(ns) * u64::from(hz)).div_ceil(1_000_000_000);
-    u32::try_from(c).unwrap_or(u32::MAX)
-}
+/// The timing arithmetic is `bridge_logic::rate`'s, so that the rate the
+/// firmware fits to a chain is worked out from this driver's own timing.
+pub use bridge_logic::rate::{cycles, sck_divider, BusTiming};
 
 /// SPI1 up (mode 3, MSB first, 8-bit, master, software NSS held high,
 /// CR1.BR = `br`), then enabled.
@@ -351,38 +333,6 @@ pub struct ChainDmaStats {
     pub timeouts: u32,
 }
 
-/// The batches' times, worked out once (no division per batch).
-#[derive(Clone, Copy, Debug)]
-struct Timing {
-    /// TIM7's gap and set-up, ns.
-    gap_ns: u32,
-    setup_ns: u32,
-    /// Gap + set-up + 3 µs for a window's three interrupts, ns.
-    window_ns: u32,
-    /// One byte on the wire, ns (rounded up).
-    byte_ns: u32,
-}
-
-impl Timing {
-    // u32 values widened to u64 (no overflow), divisors at least 1.
-    #[allow(clippy::arithmetic_side_effects)]
-    fn new(gap_ticks: u32, setup_ticks: u32, timclk_hz: u32, sck_hz: u32) -> Timing {
-        // ARR = ticks: the pulse lasts ticks + 1 timer-clock periods.
-        let ns = |ticks: u32| {
-            let t = (u64::from(ticks) + 1) * 1_000_000_000 / u64::from(timclk_hz.max(1));
-            u32::try_from(t).unwrap_or(u32::MAX)
-        };
-        let (gap_ns, setup_ns) = (ns(gap_ticks), ns(setup_ticks));
-        let byte = (8_000_000_000u64).div_ceil(u64::from(sck_hz.max(1)));
-        Timing {
-            gap_ns,
-            setup_ns,
-            window_ns: gap_ns.saturating_add(setup_ns).saturating_add(3_000),
-            byte_ns: u32::try_from(byte).unwrap_or(u32::MAX),
-        }
-    }
-}
-
 /// The chain's one driver (module docs): blocking windows
 /// ([`ChainSpi::window`], its [`ChainBus`]) and batches of windows by DMA2
 /// and TIM7 — `start` and `poll` from the control tick, `on_dma` from
@@ -392,7 +342,8 @@ pub struct ChainSpi<H> {
     hw: H,
     gap_arr: u16,
     setup_arr: u16,
-    timing: Timing,
+    /// The batches' times, worked out once (no division per batch).
+    timing: BusTiming,
     sck_hz: u32,
     setup_cycles: u32,
     deselect_cycles: u32,
@@ -445,7 +396,13 @@ impl<H: ChainHw + ChainMemory> ChainSpi<H> {
             // = ticks waits at least `ticks` + 1 periods of the timer clock.
             gap_arr: u16::try_from(gap_ticks).unwrap_or(u16::MAX),
             setup_arr: u16::try_from(setup_ticks).unwrap_or(u16::MAX),
-            timing: Timing::new(gap_ticks, setup_ticks, clocks.timclk_hz, sck_hz),
+            timing: BusTiming::of(
+                clocks.pclk2_hz,
+                clocks.timclk_hz,
+                SCK_MAX_HZ,
+                CS_DESELECT_NS,
+                CS_SETUP_NS,
+            ),
             sck_hz,
             setup_cycles: cycles(CS_SETUP_NS, clocks.sysclk_hz),
             deselect_cycles: cycles(CS_DESELECT_NS, clocks.sysclk_hz),
@@ -656,19 +613,19 @@ impl<H: ChainHw + ChainMemory> ChainSpi<H> {
         (self.timing.gap_ns, self.timing.setup_ns)
     }
 
+    /// The bus timing this driver makes ([`BusTiming`]).
+    pub fn timing(&self) -> BusTiming {
+        self.timing
+    }
+
     /// Nominal duration of the current batch, µs (rounded up): per window
-    /// the gap, the set-up, the bytes and 3 µs for the three interrupts.
+    /// the gap, the set-up, the bytes and `rate::WINDOW_SLACK_NS` for the
+    /// three interrupts and the DMA and SPI start.
     pub fn nominal_us(&self) -> u64 {
-        let t = &self.timing;
-        let window_ns = t
-            .window_ns
-            .saturating_add(u32::from(self.n).saturating_mul(t.byte_ns));
         // 16 windows of 8 bytes at 2.625 MHz: 0.46 ms, far from saturating.
-        u64::from(
-            u32::from(self.windows)
-                .saturating_mul(window_ns)
-                .div_ceil(1_000),
-        )
+        self.timing
+            .batch_ns(u32::from(self.windows), u32::from(self.n))
+            .div_ceil(1_000)
     }
 
     /// How long a batch may take before `poll` stops it.

@@ -41,6 +41,9 @@ pub const MAX_COMMANDS: usize = 3;
 /// Windows one batch may take (3 commands of 4 bytes plus response padding).
 pub const MAX_WINDOWS: usize = 16;
 
+/// CS windows of a streaming tick's batch (a read and a Run per device).
+pub const STREAM_WINDOWS: usize = 5;
+
 /// Bytes of one batch, window by window (only the first N of each row are sent).
 pub type Frames = [[u8; MAX_DEVICES]; MAX_WINDOWS];
 
@@ -210,12 +213,22 @@ impl Plan {
     /// (command bytes back to back, NOP padding before a second response),
     /// then the streams are right-aligned on the longest one and transposed
     /// into windows. The control tick runs this every tick: each command is
-    /// encoded once and every index is bounded by a constant array length.
+    /// encoded once and every index is bounded by a constant array length;
+    /// its common batch, a read and a Run per device, is laid out directly
+    /// (the same plan).
+    pub fn schedule(&mut self, batch: &Batch) -> Result<(), ScheduleError> {
+        if self.schedule_streaming(batch) {
+            return Ok(());
+        }
+        self.schedule_general(batch)
+    }
+
+    /// [`Plan::schedule`] for any batch (the layout the module docs give).
     // Positions are bounded by the constants before any sum: a device's
     // stream is at most MAX_WINDOWS + 4 bytes (checked before each command
     // is placed), so no position, length or window count can overflow.
     #[allow(clippy::arithmetic_side_effects)]
-    pub fn schedule(&mut self, batch: &Batch) -> Result<(), ScheduleError> {
+    fn schedule_general(&mut self, batch: &Batch) -> Result<(), ScheduleError> {
         let n = usize::from(batch.n).min(MAX_DEVICES);
         self.n = n as u8;
         self.windows = 0;
@@ -301,6 +314,63 @@ impl Plan {
             }
         }
         Ok(())
+    }
+
+    /// The streaming tick's batch, laid out directly: every device a read
+    /// (GetStatus, or GetParam of a register of 1 to 3 bytes) then a Run.
+    /// The general layout gives it 5 windows, every stream starting in
+    /// window 0 (the read's response comes out while Run's argument bytes
+    /// go in), the read's reply from window 1: this writes that plan
+    /// straight away (the control tick's common case; a test compares it
+    /// with the general layout). False, with the plan untouched, for any
+    /// other batch.
+    // Indices are d < n ≤ MAX_DEVICES and windows 0..5 of MAX_WINDOWS.
+    #[allow(clippy::arithmetic_side_effects)]
+    fn schedule_streaming(&mut self, batch: &Batch) -> bool {
+        let n = usize::from(batch.n).min(MAX_DEVICES);
+        let Some(all) = batch.cmds.get(..n) else {
+            return false;
+        };
+        let streaming = |cmds: &Vec<Command, MAX_COMMANDS>| match cmds.as_slice() {
+            [read @ (Command::GetStatus | Command::GetParam(_)), Command::Run(..)] => {
+                (1..=3).contains(&read.response_len())
+            }
+            _ => false,
+        };
+        if n == 0 || !all.iter().all(streaming) {
+            return false;
+        }
+        self.n = n as u8;
+        self.windows = STREAM_WINDOWS as u8;
+        self.sync_window = STREAM_WINDOWS as u8 - 1;
+        self.reads.clear();
+        let Some(rows) = self.tx.get_mut(..STREAM_WINDOWS) else {
+            return false;
+        };
+        for row in rows.iter_mut() {
+            *row = [0; MAX_DEVICES];
+        }
+        for (d, cmds) in all.iter().enumerate() {
+            let col = n - 1 - d;
+            for (index, cmd) in cmds.iter().enumerate() {
+                let (bytes, k) = cmd.encode().raw();
+                for (row, b) in rows.iter_mut().skip(index).zip(bytes).take(k) {
+                    if let Some(cell) = row.get_mut(col) {
+                        *cell = b;
+                    }
+                }
+            }
+            if let Some(read) = cmds.first() {
+                let _ = self.reads.push(ReadSlot {
+                    device: d as u8,
+                    index: 0,
+                    first_window: 1,
+                    len: read.response_len(),
+                    command: *read,
+                });
+            }
+        }
+        true
     }
 
     /// Chain length this plan was made for.
@@ -715,6 +785,43 @@ mod tests {
         let plan = Plan::new(&b).unwrap();
         assert_eq!(plan.windows(), 5);
         assert_eq!(plan.sync_window(), 4);
+    }
+
+    #[test]
+    fn the_streaming_layout_is_the_general_one() {
+        let reads = [
+            Command::GetStatus,
+            Command::GetParam(Register::AbsPos),
+            Command::GetParam(Register::Speed),
+            Command::GetParam(Register::Config),
+            Command::GetParam(Register::AdcOut),
+        ];
+        for n in 1..=MAX_DEVICES {
+            for k in 0..reads.len() {
+                let mut b = Batch::new(n);
+                for d in 0..n {
+                    b.push(d, reads[(k + d) % reads.len()]).unwrap();
+                    let dir = if d % 2 == 0 {
+                        Direction::Forward
+                    } else {
+                        Direction::Reverse
+                    };
+                    b.push(d, Command::Run(dir, 0x12_3456 + d as u32)).unwrap();
+                }
+                let fast = Plan::new(&b).unwrap();
+                let mut slow = Plan::default();
+                slow.schedule_general(&b).unwrap();
+                assert_eq!(fast, slow, "n = {n}, k = {k}");
+                let mut probe = Plan::default();
+                assert!(probe.schedule_streaming(&b));
+            }
+        }
+        // Anything else takes the general layout.
+        let mut b = Batch::new(2);
+        b.push(0, Command::GetStatus).unwrap();
+        b.push(0, Command::Run(Direction::Forward, 5)).unwrap();
+        b.push(1, Command::GetStatus).unwrap();
+        assert!(!Plan::default().schedule_streaming(&b));
     }
 
     #[test]

@@ -4,7 +4,7 @@
 //! model, `host_tests::rm0090::flash`, with the store's power-cut test on
 //! top). This module maps the driver's register ids to `pac::FLASH`'s
 //! registers and gives it the array: memory-mapped reads and byte writes.
-//! `memory.x` keeps sectors 10 and 11 free of firmware (FLASH is 768K).
+//! `memory.x` keeps sectors 10 and 11 free of firmware (FLASH and RAMTEXT_LOAD end at 768K).
 
 // The array accesses are raw pointer accesses, and the PAC's raw register
 // writer is unsafe; each block says why it is sound.

@@ -12,6 +12,14 @@ pub const LINES: usize = 64;
 /// Bytes per line: 128 bits (RM0090 §3.4.2).
 pub const LINE_BYTES: u64 = 16;
 
+/// Whether code at `addr` is fetched through the ART: the flash (main
+/// memory at 0x0800_0000, 1 MB on the STM32F405, and its alias at 0 when
+/// booting from flash; RM0090 §2.3, §3.3). Code in SRAM (0x2000_0000) is
+/// fetched at zero wait states over the S-bus and never misses.
+pub fn through_art(addr: u64) -> bool {
+    addr < 0x0010_0000 || (0x0800_0000..0x0810_0000).contains(&addr)
+}
+
 /// What one line fetch found.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Fetch {
@@ -109,6 +117,14 @@ impl Art {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn only_flash_goes_through_the_art() {
+        assert!(through_art(0x0800_0000) && through_art(0x080F_FFFE));
+        assert!(through_art(0x0000_0400));
+        assert!(!through_art(0x2000_0000) && !through_art(0x1000_0000));
+        assert!(!through_art(0x0810_0000));
+    }
 
     #[test]
     fn a_loop_that_fits_misses_once_per_line() {

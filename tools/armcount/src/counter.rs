@@ -24,6 +24,9 @@ pub struct Config {
     pub dump: Option<u64>,
     /// Report file.
     pub out: PathBuf,
+    /// A block starting here ends an *epoch* (a bench's tick): each
+    /// counter's largest count within one epoch is reported too.
+    pub epoch: Option<u64>,
 }
 
 /// Parse `mark=ADDR` (repeated, in counter order), `dump=ADDR`, `out=FILE`.
@@ -33,6 +36,7 @@ pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Config,
         marks: Vec::new(),
         dump: None,
         out: PathBuf::from("armcount.out"),
+        epoch: None,
     };
     for a in args {
         let (key, value) = a
@@ -42,7 +46,12 @@ pub fn parse_args<'a>(args: impl IntoIterator<Item = &'a str>) -> Result<Config,
             "mark" => c.marks.push(parse_addr(value)?),
             "dump" => c.dump = Some(parse_addr(value)?),
             "out" => c.out = PathBuf::from(value),
-            _ => return Err(format!("unknown argument '{a}' (mark=, dump=, out=)")),
+            "epoch" => c.epoch = Some(parse_addr(value)?),
+            _ => {
+                return Err(format!(
+                    "unknown argument '{a}' (mark=, dump=, out=, epoch=)"
+                ))
+            }
         }
     }
     if c.marks.is_empty() {
@@ -74,6 +83,8 @@ struct Block {
     selects: Option<usize>,
     /// A run of this block writes the report.
     dumps: bool,
+    /// A run of this block ends an epoch.
+    epoch: bool,
     /// Runs per counter.
     runs: Vec<u64>,
     /// Per counter: runs after which the next block was not the one right
@@ -90,6 +101,11 @@ struct Totals {
     warm: Misses,
     /// Cache seeing every block (counted in the counter current at the time).
     cold: Misses,
+    /// Instructions since the last epoch, and the most in any one epoch.
+    since_epoch: u64,
+    epoch_max: u64,
+    /// The epoch (0 = before the first epoch block) of `epoch_max`.
+    epoch_max_at: u64,
 }
 
 /// The plugin's state.
@@ -104,6 +120,12 @@ pub struct Counter {
     warm: Art,
     cold: Art,
     reported: bool,
+    /// Epoch blocks run so far.
+    epochs: u64,
+    /// Instructions of every counter since the last epoch block, and the
+    /// most of one epoch with the epoch it was (a bench's whole tick).
+    epoch_all: u64,
+    epoch_all_max: (u64, u64),
 }
 
 impl Counter {
@@ -118,6 +140,9 @@ impl Counter {
             warm: Art::default(),
             cold: Art::default(),
             reported: false,
+            epochs: 0,
+            epoch_all: 0,
+            epoch_all_max: (0, 0),
         }
     }
 
@@ -140,6 +165,7 @@ impl Counter {
             insns,
             selects,
             dumps: self.config.dump == Some(start),
+            epoch: self.config.epoch == Some(start),
             runs: vec![0; n],
             left_by_jump: vec![0; n],
         });
@@ -159,6 +185,20 @@ impl Counter {
             block.dumps,
             block.insns.len() as u64,
         );
+        if block.epoch {
+            for t in &mut self.totals {
+                if t.since_epoch > t.epoch_max {
+                    t.epoch_max = t.since_epoch;
+                    t.epoch_max_at = self.epochs;
+                }
+                t.since_epoch = 0;
+            }
+            if self.epoch_all > self.epoch_all_max.0 {
+                self.epoch_all_max = (self.epoch_all, self.epochs);
+            }
+            self.epoch_all = 0;
+            self.epochs += 1;
+        }
         // How was the previous block left?
         if let Some((prev, ctr)) = self.previous {
             if ctr != 0 {
@@ -175,9 +215,15 @@ impl Counter {
             self.current = k;
         }
         let k = self.current;
-        let cold = self.cold.fetch_range(start, end);
+        // Code outside the flash (run from SRAM) bypasses the ART.
+        let art = crate::art::through_art(start);
+        let cold = if art {
+            self.cold.fetch_range(start, end)
+        } else {
+            Misses::default()
+        };
         let counting = k != 0;
-        let warm = if counting {
+        let warm = if counting && art {
             self.warm.fetch_range(start, end)
         } else {
             Misses::default()
@@ -187,6 +233,8 @@ impl Counter {
             if counting {
                 add(&mut t.warm, warm);
                 t.insns += n_insns;
+                t.since_epoch += n_insns;
+                self.epoch_all += n_insns;
                 t.blocks += 1;
             }
         }
@@ -233,15 +281,23 @@ impl Counter {
         for (k, t) in self.totals.iter().enumerate().skip(1) {
             let _ = writeln!(
                 s,
-                "counter {k} insns {} blocks {} lines {} warm {} {} cold {} {}",
+                "counter {k} insns {} blocks {} lines {} warm {} {} cold {} {} epochmax {} at {}",
                 t.insns,
                 t.blocks,
                 t.warm.lines,
                 t.warm.sequential,
                 t.warm.jump,
                 t.cold.sequential,
-                t.cold.jump
+                t.cold.jump,
+                t.epoch_max,
+                t.epoch_max_at
             );
+        }
+        if self.config.epoch.is_some() {
+            // Only epochs an epoch block ended (what runs after the last
+            // one is no tick).
+            let (max, at) = self.epoch_all_max;
+            let _ = writeln!(s, "epochs {} max {max} at {at}", self.epochs);
         }
         for ((pc, k), (size, count, taken)) in per_pc {
             let _ = writeln!(s, "pc {pc:x} {size} {k} {count} {taken}");
@@ -287,8 +343,13 @@ mod tests {
             Ok(Config {
                 marks: vec![0x1000, 0x2000],
                 dump: Some(0x3000),
-                out: PathBuf::from("x.txt")
+                out: PathBuf::from("x.txt"),
+                epoch: None,
             })
+        );
+        assert_eq!(
+            parse_args(["mark=1", "epoch=0x41"]).map(|c| c.epoch),
+            Ok(Some(0x40))
         );
         assert!(parse_args(["mark=zz"]).is_err());
         assert!(parse_args(["frob=1", "mark=1"]).is_err());
@@ -324,6 +385,31 @@ mod tests {
         // `after` jumped to the marker each time.
         assert!(r.contains("pc 4006 2 1 3 3\n"), "{r}");
         assert!(!r.contains(" 0 0\n"), "{r}");
+    }
+
+    #[test]
+    fn the_largest_count_of_one_epoch_is_reported() {
+        let config = parse_args(["mark=0x1000", "mark=0x2000", "epoch=0x5000", "out=x"])
+            .unwrap_or_else(|e| unreachable!("{e}"));
+        let mut c = Counter::new(config);
+        let off = c.translated(vec![(0x1000, 2)]);
+        let on = c.translated(vec![(0x2000, 2)]);
+        let work = c.translated(vec![(0x4000, 2), (0x4002, 2)]);
+        let epoch = c.translated(vec![(0x5000, 2)]);
+        // Epochs of 1, 3 and 2 runs of `work` (each with the marker: 3, 7, 5).
+        for runs in [1, 3, 2] {
+            c.executed(epoch);
+            c.executed(on);
+            for _ in 0..runs {
+                c.executed(work);
+            }
+            c.executed(off);
+        }
+        let r = c.report();
+        assert!(r.contains("counter 1 insns 15 "), "{r}");
+        assert!(r.contains(" epochmax 7 at 2\n"), "{r}");
+        // All counters of one epoch together (here only counter 1).
+        assert!(r.contains("\nepochs 3 max 7 at 2\n"), "{r}");
     }
 
     #[test]

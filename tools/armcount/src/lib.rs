@@ -18,14 +18,17 @@
 //! benches do not cause inside a counted region: the counts are exact.
 //!
 //! Arguments: `mark=ADDR` (repeated: counter 0, 1, 2, …), `dump=ADDR`,
-//! `out=FILE`; see `counter`. The cache model is in `art`.
+//! `out=FILE`, `epoch=ADDR` (a block there ends an epoch, e.g. a bench's
+//! tick); see `counter`. The cache model is in `art`.
 //!
 //! Report (`out=`, text, one record a line):
 //!
 //! ```text
 //! armcount-report 1
 //! counters N                          (marks given; counter 0 counts nothing)
-//! counter K insns I blocks B lines L warm S J cold S J
+//! counter K insns I blocks B lines L warm S J cold S J epochmax E at N
+//! epochs N max M at E                (with epoch=: the most instructions of all
+//!                                     counters together in one epoch, and which)
 //! pc ADDR SIZE K COUNT TAKEN          (hex address; per instruction and counter)
 //! ```
 //!
@@ -33,7 +36,10 @@
 //! sequential and jump misses of a cache that sees only counted blocks (the
 //! measured code alone, as on an otherwise idle CPU), `cold` those of one
 //! that sees every block (the bench's other code evicts lines in between).
-//! TAKEN counts the runs after which the next block did not start right
+//! `epochmax` is the most instructions K counted within one epoch that an
+//! epoch block ended (0 without `epoch=`), in epoch N (counted from 0,
+//! before the first epoch block). Code outside the flash (run from SRAM) is not
+//! fetched through the cache and never misses. TAKEN counts the runs after which the next block did not start right
 //! after this instruction (kept for the block's last instruction only).
 
 mod art;

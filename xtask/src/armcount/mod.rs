@@ -19,8 +19,12 @@
 //! costs them, half hidden by the prefetch buffer when the miss is
 //! sequential (RM0090 §3.4.1): 2.5 cycles, else 5. Not timed tests.
 
+pub mod cost;
 pub mod cycles;
 pub mod disasm;
+mod tick;
+
+pub use tick::tick_cpu;
 
 use std::collections::HashMap;
 use std::fmt::Write as _;
@@ -48,6 +52,8 @@ pub struct Totals {
     pub warm_jump: u64,
     pub cold_seq: u64,
     pub cold_jump: u64,
+    /// The most instructions of one epoch (a bench's tick; 0 without one).
+    pub epoch_max: u64,
 }
 
 /// One instruction's count in one counter.
@@ -64,6 +70,9 @@ pub struct PcCount {
 pub struct Counts {
     pub totals: HashMap<usize, Totals>,
     pub pcs: Vec<PcCount>,
+    /// With epochs: the most instructions of all counters in one epoch, and
+    /// which epoch (0 = before the first epoch block).
+    pub epoch_max: Option<(u64, u64)>,
 }
 
 impl Counts {
@@ -93,9 +102,11 @@ impl Counts {
                             warm_jump: num(10)?,
                             cold_seq: num(12)?,
                             cold_jump: num(13)?,
+                            epoch_max: num(15).unwrap_or(0),
                         },
                     );
                 }
+                Some(&"epochs") => c.epoch_max = Some((num(3)?, num(5)?)),
                 Some(&"pc") => {
                     let pc = f
                         .get(1)
@@ -223,6 +234,8 @@ struct Run<'a> {
     elf: &'a Path,
     marks: &'a [&'a str],
     dump: &'a str,
+    /// The function whose run ends an epoch (a tick), if any.
+    epoch: Option<&'a str>,
     serials: &'a [&'a str],
     semihosting: String,
     out: PathBuf,
@@ -238,6 +251,9 @@ fn count(qemu: &Qemu, plugin: &Path, d: &Disasm, r: &Run) -> Result<Counts> {
         let _ = write!(arg, ",mark={:#x}", addr(m)?);
     }
     let _ = write!(arg, ",dump={:#x},out={}", addr(r.dump)?, r.out.display());
+    if let Some(e) = r.epoch {
+        let _ = write!(arg, ",epoch={:#x}", addr(e)?);
+    }
     if let Some(dir) = r.out.parent() {
         std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
     }
@@ -303,7 +319,15 @@ impl Stats {
 
 /// Code that belongs to the bench, not to what it measures.
 fn is_bench(func: Option<&str>) -> bool {
-    func.is_none_or(|f| f.contains("armcost_mark") || f.contains("__cortex_m_rt_main"))
+    func.is_none_or(|f| {
+        f.contains("armcost_mark")
+            || f.contains("__cortex_m_rt_main")
+            || f.starts_with("tick_armcount::image::tick::")
+            || f.starts_with("__Thumbv7ABSLongThunk_armcost")
+            // The bench's simulated bus glue (and its long-call thunks).
+            || f.contains("tick_armcount..image..Bus")
+            || f.contains("tick_armcount::image::Bus")
+    })
 }
 
 /// A 64-bit (or any) division helper of compiler-builtins.
@@ -495,115 +519,6 @@ pub fn share(cycles: f64, hz: u32) -> f64 {
 
 // --- the three benches -----------------------------------------------------
 
-/// `cargo xtask tick-cpu`.
-pub fn tick_cpu(_args: &[String]) -> Result {
-    const N: f64 = 20_000.0;
-    setup::ensure_target()?;
-    let qemu = setup::qemu()?;
-    let plugin = plugin()?;
-    let elf = bench_image("tick-armcount", &["sim"])?;
-    let d = objdump(&elf, true)?;
-    let out = util::target_dir().join("armcount-bench/tick.out");
-    let c = count(
-        &qemu,
-        &plugin,
-        &d,
-        &Run {
-            elf: &elf,
-            marks: &[
-                "armcost_mark_off",
-                "armcost_mark_prepare",
-                "armcost_mark_run",
-                "armcost_mark_finish",
-                "armcost_mark_profile",
-                "armcost_mark_cal",
-            ],
-            dump: "armcost_mark_dump",
-            serials: &["none"],
-            semihosting: "enable=on,target=native".into(),
-            out,
-        },
-    )?;
-    let names = [
-        "prepare (plan + profile generator + schedule/encode)",
-        "run_into minus bus windows (window loop + decode)",
-        "finish (absorb replies)",
-        "profile mode: one Profile::tick",
-        "calibration: empty marker pair",
-    ];
-    println!("N = {N} ticks; Thumb-2 instructions per tick (per call for counters 4 and 5)\n");
-    let s: Vec<Stats> = (1..=5).map(|k| stats(&d, &c, k, N)).collect();
-    for (k, (name, st)) in names.iter().zip(&s).enumerate() {
-        print_counter(k + 1, name, st);
-    }
-    let [prepare, run, finish, profile, _cal] = &s[..] else {
-        bail!("five counters expected");
-    };
-    let tick = [prepare, run, finish];
-    let pf = prepare.net + finish.net;
-    let insn: f64 = tick.iter().map(|t| t.net).sum();
-    println!(
-        "SUMMARY whole 8-axis tick: prepare+finish (callgrind's scope) {pf:.0} insns ({:.0}/axis); + run_into CPU part {insn:.0} ({:.0}/axis)",
-        pf / 8.0,
-        insn / 8.0
-    );
-    for (i, (name, _)) in cycles::MODELS.iter().enumerate() {
-        let c1 = prepare.cycles[i] + finish.cycles[i];
-        println!(
-            "  cycles ({name}): prepare+finish {c1:.0}; with run_into {:.0}",
-            c1 + run.cycles[i]
-        );
-    }
-    let warm = tick
-        .iter()
-        .fold((0.0, 0.0), |a, t| (a.0 + t.warm.0, a.1 + t.warm.1));
-    let cold = tick
-        .iter()
-        .fold((0.0, 0.0), |a, t| (a.0 + t.cold.0, a.1 + t.cold.1));
-    println!(
-        "  ART misses/tick (counters 1-3): warm {:.0} seq + {:.0} jump; cold {:.0} seq + {:.0} jump",
-        warm.0, warm.1, cold.0, cold.1
-    );
-    println!(
-        "SUMMARY profile generator: {:.0} insns/axis-tick, cycles {:.0} / {:.0} / {:.0}",
-        profile.net, profile.cycles[0], profile.cycles[1], profile.cycles[2]
-    );
-    println!();
-    let div: f64 = tick
-        .iter()
-        .flat_map(|t| t.calls.iter())
-        .filter(|(f, _)| f.starts_with("__aeabi_"))
-        .map(|(_, c)| c)
-        .sum();
-    let core: f64 = tick.iter().map(|t| t.cycles[1]).sum();
-    let flash: f64 = tick.iter().map(|t| t.flash_wait()).sum();
-    let total = core + flash;
-    let tick_us = 1_000_000 / tick_hz().max(1);
-    println!(
-        "RESULT tick {tick_us} us, 8 axes: {insn:.0} Thumb-2 instructions per tick, {:.0} per axis-tick; 64-bit division calls per tick: {div:.2}",
-        insn / 8.0
-    );
-    println!(
-        "RESULT profile generator: {:.0} instructions per axis-tick",
-        profile.net
-    );
-    println!(
-        "RESULT ART misses per tick (64 x 16 B, LRU, the tick's code alone): {:.0} sequential + {:.0} jumps; with the simulated chips' code in between: {:.0} + {:.0}",
-        warm.0, warm.1, cold.0, cold.1
-    );
-    println!(
-        "RESULT cycles per tick: {core:.0} core + {flash:.0} flash wait = {total:.0} ({WAIT_STATES} wait states; 0 wait states: {core:.0})"
-    );
-    for hz in RATES_HZ {
-        println!(
-            "RESULT CPU share of the tick's computation at {} kHz: {:.1} %",
-            hz / 1000,
-            share(total, hz)
-        );
-    }
-    Ok(())
-}
-
 /// `cargo xtask chain-cpu`: per event of a streaming batch on 8 chips (5
 /// windows of 8 bytes; firmware/tests/chain_cost.rs hands the driver the
 /// events its interrupts would, QEMU having no DMA and no TIM7), the
@@ -616,7 +531,7 @@ pub fn tick_cpu(_args: &[String]) -> Result {
 /// entry and return of every interrupt (12 + 10 cycles on the Cortex-M4 with
 /// the FPU context unused: Cortex-M4 TRM §5.5.1; tail-chaining would save
 /// some). tests/chain_spi.rs logs the real cycles on a board.
-pub fn chain_cpu(_args: &[String]) -> Result {
+pub fn chain_cpu(args: &[String]) -> Result {
     const N: u64 = 200;
     const WINDOWS: u64 = 5;
     const ENTRY_EXIT: f64 = 22.0;
@@ -644,6 +559,7 @@ pub fn chain_cpu(_args: &[String]) -> Result {
             ],
             dump: "armcost_mark_dump",
             serials: &["none", "null"],
+            epoch: None,
             semihosting: format!(
                 "enable=on,target=native,arg=chain_cost,arg=flash={}",
                 flash.path().join("flash.bin").display()
@@ -685,6 +601,8 @@ pub fn chain_cpu(_args: &[String]) -> Result {
         "chain DMA driver, streaming batch of {WINDOWS} windows x 8 bytes ({N} batches; empty marker pair {cal:.0} instructions, subtracted)"
     );
     let (mut b_insn, mut b_cyc, mut i_insn, mut i_cyc) = (0.0, 0.0, 0.0, 0.0);
+    // The part in the control tick (start and hand-over).
+    let mut t_cyc = 0.0;
     for (k, name, per, isr) in events {
         let calls = (N * per) as f64;
         let insn = c.insns(k) as f64 / calls - cal;
@@ -699,6 +617,8 @@ pub fn chain_cpu(_args: &[String]) -> Result {
         if isr {
             i_insn += insn * per as f64;
             i_cyc += cyc * per as f64;
+        } else {
+            t_cyc += cyc * per as f64;
         }
     }
     println!(
@@ -712,7 +632,7 @@ pub fn chain_cpu(_args: &[String]) -> Result {
             share(b_cyc, hz)
         );
     }
-    Ok(())
+    cost::check("CHAIN_DRIVER_TICK_CYCLES", t_cyc, tick::write_flag(args))
 }
 
 /// `cargo xtask ioext-cpu`: the I/O extension's CPU work per 256-bit
@@ -745,6 +665,7 @@ pub fn ioext_cpu(_args: &[String]) -> Result {
             ],
             dump: "mark_dump",
             serials: &["none"],
+            epoch: None,
             semihosting: "enable=on,target=native".into(),
             out: util::target_dir().join("armcount-bench/ioext.out"),
         },
@@ -779,6 +700,7 @@ pub fn ioext_cpu(_args: &[String]) -> Result {
             marks: &["mark_off", "mark_spi", "mark_timer", "mark_cal"],
             dump: "mark_dump",
             serials: &["none", "null"],
+            epoch: None,
             semihosting: format!(
                 "enable=on,target=native,arg=ioext_cost,arg=flash={}",
                 flash.path().join("flash.bin").display()
@@ -816,9 +738,18 @@ mod tests {
                 warm_seq: 4,
                 warm_jump: 5,
                 cold_seq: 6,
-                cold_jump: 7
+                cold_jump: 7,
+                epoch_max: 0
             }
         );
+        let e = Counts::parse(
+            "armcount-report 1\ncounter 1 insns 1 blocks 1 lines 1 warm 0 0 cold 0 0 epochmax 9\n",
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(e.totals[&1].epoch_max, 9);
+        let t = Counts::parse("armcount-report 1\nepochs 12 max 340 at 3\n")
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(t.epoch_max, Some((340, 3)));
         assert_eq!(
             c.pcs,
             vec![PcCount {

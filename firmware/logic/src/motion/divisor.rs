@@ -74,6 +74,82 @@ impl Divisor {
     }
 }
 
+/// `n / d` for a divisor below 2³², exactly, with the core's 32-bit
+/// divide (UDIV) only: the high word by UDIV, then the low word's 64-by-32
+/// step as two 16-bit digits (Hacker's Delight, `divlu`). A 64-bit `/` is
+/// a library call and an `i128` one a 128-step loop on a Cortex-M4.
+pub const fn div_u64_by_u32(n: u64, d: u32) -> u64 {
+    if d == 0 {
+        return n; // as Divisor: 0 divides as 1 (callers guard their divisors)
+    }
+    let hi = (n >> 32) as u32;
+    let q_hi = hi / d;
+    let r_hi = hi - q_hi * d;
+    ((q_hi as u64) << 32) | divlu(r_hi, n as u32, d) as u64
+}
+
+/// `n / d` for a divisor below 2³², exactly: long division in 32-bit
+/// limbs, each step by [`div_u64_by_u32`] (an `i128`/`u128` division is a
+/// long loop on a Cortex-M4). 0 divides as 1.
+pub const fn div_u128_by_u32(n: u128, d: u32) -> u128 {
+    if d == 0 {
+        return n;
+    }
+    let dd = d as u64;
+    let mut r = 0u64;
+    let mut q = 0u128;
+    let mut i = 4;
+    while i > 0 {
+        i -= 1;
+        // r < d < 2³²: the step's dividend fits 64 bits, its quotient 32.
+        let t = (r << 32) | ((n >> (32 * i)) as u64 & 0xFFFF_FFFF);
+        let qi = div_u64_by_u32(t, d);
+        r = t - qi * dd;
+        q |= (qi as u128) << (32 * i);
+    }
+    q
+}
+
+/// ⌊(u1·2³² + u0) / v⌋ for `u1 < v` (the quotient fits 32 bits), from
+/// 32-by-32 divisions of 16-bit digits (Hacker's Delight 9-3, `divlu2`).
+const fn divlu(u1: u32, u0: u32, v: u32) -> u32 {
+    const B: u32 = 1 << 16;
+    // Normalise: v's top bit set (u1 < v keeps the numerator's top part in range).
+    let s = v.leading_zeros();
+    let v = v << s;
+    let (vn1, vn0) = (v >> 16, v & 0xFFFF);
+    let un32 = if s == 0 {
+        u1
+    } else {
+        (u1 << s) | (u0 >> (32 - s))
+    };
+    let un10 = u0 << s;
+    let (un1, un0) = (un10 >> 16, un10 & 0xFFFF);
+    let mut q1 = un32 / vn1;
+    let mut rhat = un32 - q1 * vn1;
+    while q1 >= B || (q1 as u64) * (vn0 as u64) > (B as u64) * (rhat as u64) + un1 as u64 {
+        q1 -= 1;
+        rhat += vn1;
+        if rhat >= B {
+            break;
+        }
+    }
+    let un21 = un32
+        .wrapping_mul(B)
+        .wrapping_add(un1)
+        .wrapping_sub(q1.wrapping_mul(v));
+    let mut q0 = un21 / vn1;
+    let mut rhat = un21 - q0 * vn1;
+    while q0 >= B || (q0 as u64) * (vn0 as u64) > (B as u64) * (rhat as u64) + un0 as u64 {
+        q0 -= 1;
+        rhat += vn1;
+        if rhat >= B {
+            break;
+        }
+    }
+    q1 * B + q0
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -136,8 +212,54 @@ mod tests {
         assert_eq!(Divisor::new(1).div_signed(i64::MIN), i64::MIN);
     }
 
+    #[test]
+    fn by_u32_is_exact_at_the_edges() {
+        for d in [
+            1u32,
+            2,
+            3,
+            7,
+            0xFFFF,
+            0x1_0000,
+            0x1_0001,
+            0x8000_0000,
+            u32::MAX - 1,
+            u32::MAX,
+        ] {
+            for n in [
+                0u64,
+                1,
+                u64::from(d) - 1,
+                u64::from(d),
+                u64::MAX,
+                u64::MAX - 1,
+                1 << 32,
+                (1 << 32) - 1,
+                0x8000_0000_0000_0000,
+            ] {
+                assert_eq!(div_u64_by_u32(n, d), n / u64::from(d), "{n} / {d}");
+            }
+        }
+        assert_eq!(div_u64_by_u32(12345, 0), 12345);
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(20_000))]
+
+        #[test]
+        fn by_u32_equals_the_division_operator(n in any::<u64>(), d in 1u32..) {
+            prop_assert_eq!(div_u64_by_u32(n, d), n / u64::from(d));
+        }
+
+        #[test]
+        fn u128_by_u32_equals_the_division_operator(n in any::<u128>(), d in 1u32..) {
+            prop_assert_eq!(div_u128_by_u32(n, d), n / u128::from(d));
+        }
+
+        #[test]
+        fn by_small_u32_too(n in any::<u64>(), d in 1u32..100_000) {
+            prop_assert_eq!(div_u64_by_u32(n, d), n / u64::from(d));
+        }
 
         #[test]
         fn div_equals_the_division_operator(n in any::<u64>(), d in 1u64..) {

@@ -41,7 +41,7 @@
 // and the property tests run the extremes.
 #![allow(clippy::arithmetic_side_effects)]
 
-use super::divisor::Divisor;
+use super::divisor::{div_u128_by_u32, Divisor};
 
 /// Velocity and acceleration fraction bits (2⁻³² steps per tick).
 const VEL_FRAC: u32 = 32;
@@ -73,6 +73,9 @@ pub enum Mode {
     Velocity(i64),
 }
 
+/// Limits in internal units: (vmax, acc, dec).
+type Internal = (i64, i64, i64);
+
 /// The trapezoidal profile generator of one axis.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Profile {
@@ -95,6 +98,12 @@ pub struct Profile {
     /// The last braking distance computed at `dec`: (speed, distance). While
     /// cruising the same one is asked for every tick.
     memo: (i64, i128),
+    /// The internal limits (vmax, acc, dec) of the last two limits set
+    /// (a move's start and its stop alternate between two; the
+    /// conversions are 128-bit divisions).
+    conv: [Option<(Limits, Internal)>; 2],
+    /// The divisor of the deceleration used before `dec_div`.
+    prev_div: Divisor,
 }
 
 /// Steps/s → 2⁻³² steps/tick, rounded down (never above the limit).
@@ -128,7 +137,11 @@ pub const fn speed_from_internal(v: i64, tick_us: u32) -> i64 {
     if tick_us == 0 {
         return 0;
     }
-    let x = ((v as i128) * 1_000_000) / (tick_us as i128);
+    // (v · 10⁶) / tick_us toward zero, by 32-bit limbs (an i128 division
+    // is a long loop on the Cortex-M4; the control tick asks while the
+    // profile is above a lowered max speed).
+    let m = div_u128_by_u32(v.unsigned_abs() as u128 * 1_000_000, tick_us) as i128;
+    let x = if v < 0 { -m } else { m };
     let half = 1i128 << (VEL_FRAC - 1);
     if x >= 0 {
         ((x + half) >> VEL_FRAC) as i64
@@ -165,6 +178,17 @@ fn braking_with(v: i64, dec: i64, m: i64) -> i128 {
     (2 * m + 1) * i128::from(v) - i128::from(dec) * m * (m + 1)
 }
 
+/// `num / d` (rounded toward zero, as `/`): by the 32-bit divide where
+/// both fit ([`divisor::div_u64_by_u32`]; the braking fit's `num` is below
+/// 2⁶⁴ and its `d` = 2k + 2 below 2³² but for extreme limits), else as
+/// `i128` (a 128-step loop on the Cortex-M4).
+fn quotient(num: i128, d: i64) -> i128 {
+    match (u64::try_from(num), u32::try_from(d)) {
+        (Ok(n), Ok(dd)) if dd > 0 => i128::from(super::divisor::div_u64_by_u32(n, dd)),
+        _ => num / i128::from(d),
+    }
+}
+
 /// Position travelled (2⁻³³ steps) if the next velocity is `w` after `v`, then
 /// braking to zero: `v + w + 2·D(w)`. Increasing in `w`.
 fn reach(v: i64, w: i64, dec: i64) -> i128 {
@@ -186,6 +210,8 @@ impl Profile {
             dec_limit: 1,
             dec_div: Divisor::new(1),
             memo: (0, 0),
+            conv: [None, None],
+            prev_div: Divisor::new(1),
         };
         p.set_limits(limits);
         p
@@ -200,7 +226,14 @@ impl Profile {
     fn set_dec(&mut self, dec: i64) {
         if dec != self.dec || self.dec_div.get() != dec.unsigned_abs() {
             self.dec = dec;
-            self.dec_div = Divisor::new(dec.unsigned_abs());
+            let d = dec.unsigned_abs();
+            let old = self.dec_div;
+            self.dec_div = if self.prev_div.get() == d {
+                self.prev_div
+            } else {
+                Divisor::new(d)
+            };
+            self.prev_div = old;
             self.memo = (0, 0);
         }
     }
@@ -228,9 +261,9 @@ impl Profile {
     /// (module doc).
     pub fn set_limits(&mut self, limits: Limits) {
         self.limits = limits;
-        self.vmax = speed_to_internal(limits.max_speed.max(1), self.tick_us).max(1);
-        self.acc = acc_to_internal(limits.acc.max(1), self.tick_us);
-        let dec = acc_to_internal(limits.dec.max(1), self.tick_us);
+        let (vmax, acc, dec) = self.internal(limits);
+        self.vmax = vmax;
+        self.acc = acc;
         let d = if dec < self.dec {
             self.stoppable_dec(dec)
         } else {
@@ -238,6 +271,24 @@ impl Profile {
         };
         self.set_dec(d);
         self.dec_limit = dec;
+    }
+
+    /// `limits` in internal units: (vmax, acc, dec), remembered for the last
+    /// two limits (module doc of [`Profile`]'s fields).
+    fn internal(&mut self, limits: Limits) -> Internal {
+        let [last, before] = self.conv;
+        for (l, v) in [last, before].into_iter().flatten() {
+            if l == limits {
+                return v;
+            }
+        }
+        let v = (
+            speed_to_internal(limits.max_speed.max(1), self.tick_us).max(1),
+            acc_to_internal(limits.acc.max(1), self.tick_us),
+            acc_to_internal(limits.dec.max(1), self.tick_us),
+        );
+        self.conv = [Some((limits, v)), last];
+        v
     }
 
     /// The smallest deceleration in `[lower, self.dec]` with which the axis
@@ -498,7 +549,7 @@ impl Profile {
         let k = lo;
         // Inside segment k: reach = v + (2k+2)·w − dec·k(k+1).
         let num = r - i128::from(v) + i128::from(dec) * i128::from(k) * i128::from(k + 1);
-        let w = num / i128::from(2 * k + 2);
+        let w = quotient(num, 2 * k + 2);
         let seg_top = i128::from(dec) * i128::from(k + 1) - 1;
         let w = w.min(seg_top).min(i128::from(upper)).max(i128::from(lower));
         w as i64
@@ -510,6 +561,35 @@ mod tests {
     use super::*;
 
     const MS: u32 = 1000;
+
+    #[test]
+    fn speeds_from_internal_equal_the_i128_division() {
+        let by_i128 = |v: i64, t: u32| {
+            let x = (i128::from(v) * 1_000_000) / i128::from(t);
+            let half = 1i128 << (VEL_FRAC - 1);
+            if x >= 0 {
+                ((x + half) >> VEL_FRAC) as i64
+            } else {
+                -((-x + half) >> VEL_FRAC) as i64
+            }
+        };
+        let vs = (-3_000i64..3_000)
+            .chain((0..2_000).map(|k| k * 4_611_686_018_427_387))
+            .chain((0..2_000).map(|k| -k * 4_611_686_018_427_387))
+            .chain([
+                i64::MIN,
+                i64::MIN + 1,
+                i64::MAX,
+                1 << 32,
+                -(1 << 32),
+                400 << 32,
+            ]);
+        for v in vs {
+            for t in [1u32, 7, 200, 250, 500, 1000, 2000, 65_535, u32::MAX] {
+                assert_eq!(speed_from_internal(v, t), by_i128(v, t), "{v} {t}");
+            }
+        }
+    }
 
     fn lim(max_speed: u32, acc: u32, dec: u32) -> Limits {
         Limits {

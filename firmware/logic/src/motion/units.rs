@@ -34,6 +34,20 @@ pub const BACKSTOP_EXTRA: u64 = 16;
 /// Largest MAX_SPEED register value (10 bit).
 const MAX_SPEED_REG_MAX: u64 = 0x3FF;
 
+/// `(x >> shift) as i64` (the low 64 bits of the arithmetic shift), in
+/// 64-bit halves for `1 ≤ shift ≤ 63`: an `i128` shift by a variable
+/// amount is a long sequence on a 32-bit core, and the control tick does
+/// one per axis (the profile's position in physical microsteps).
+#[inline]
+pub const fn shr_i128_to_i64(x: i128, shift: u32) -> i64 {
+    if shift == 0 || shift >= 64 {
+        return (x >> (shift & 127)) as i64;
+    }
+    let lo = x as u64;
+    let hi = (x >> 64) as u64;
+    ((lo >> shift) | (hi << (64 - shift))) as i64
+}
+
 /// Logical position → physical microsteps (floor when the logical step is finer).
 pub const fn logical_to_physical(pos: i64, logical_shift: u8, step: StepSel) -> i64 {
     let s = step.shift() as i64;
@@ -311,15 +325,14 @@ pub const fn backstop_reg(v: u32, logical_shift: u8) -> u32 {
 const fn ramp_reg_exact(a: u32, logical_shift: u8) -> u64 {
     let full = full_q16(a, logical_shift);
     let fast = full * RAMP_HEADROOM_NUM / RAMP_HEADROOM_DEN;
-    // ACC = a · 2⁴⁰ / (4·10⁶)² = a_q16 · 2²⁴ / 1.6·10¹³ (units::acc_from_steps_per_s2)
-    let den: u128 = 16_000_000_000_000;
-    let reg = (((fast as u128) << 24) + den / 2) / den;
+    // ACC = a · 2⁴⁰ / (4·10⁶)² = a_q16 · 2²⁴ / 1.6·10¹³ (units::acc_from_steps_per_s2),
+    // rounded: ⌊(fast · 2²⁴ + 8·10¹²) / (2¹⁶ · 244 140 625)⌋. The 2¹⁶ first
+    // (exact: fast · 2²⁴ is a multiple of it, 8·10¹² / 2¹⁶ = 122 070 312.5),
+    // then the 32-bit divisor by the core's divide: fast < 2⁵⁰, so
+    // fast · 2⁸ fits 64 bits (a 128-bit division is a long loop on the M4).
+    let reg = super::divisor::div_u64_by_u32((fast << 8) + 122_070_312, 244_140_625);
     let reg = if reg == 0 { 1 } else { reg };
-    if reg > u64::MAX as u128 {
-        u64::MAX
-    } else {
-        reg as u64 + 1
-    }
+    reg.saturating_add(1)
 }
 
 /// The chip's ACC/DEC register for a profile acceleration: capped at the
@@ -597,6 +610,56 @@ mod tests {
         // 15 625² / (2 · 5 120) = 23 842 full steps.
         let r = StopCap::new(65_535, 4, StepSel::OneTwentyEighth).room();
         assert!((r - 23_842 * 128).abs() < 128, "{r}");
+    }
+
+    /// The 128-bit form `ramp_reg_exact` had.
+    fn ramp_reg_by_u128(a: u32, logical_shift: u8) -> u64 {
+        let fast = full_q16(a, logical_shift) * RAMP_HEADROOM_NUM / RAMP_HEADROOM_DEN;
+        let den: u128 = 16_000_000_000_000;
+        let reg = ((u128::from(fast) << 24) + den / 2) / den;
+        u64::try_from(reg.max(1)).unwrap_or(u64::MAX - 1) + 1
+    }
+
+    #[test]
+    fn the_ramp_register_equals_the_128_bit_division() {
+        for shift in 0..=MAX_LOGICAL_SHIFT {
+            for a in (0..5_000u32)
+                .chain((0..2_000).map(|k| k * 2_147_483))
+                .chain([u32::MAX, u32::MAX - 1, 1 << 31, 65_535, 200_000])
+            {
+                assert_eq!(
+                    ramp_reg_exact(a, shift),
+                    ramp_reg_by_u128(a, shift),
+                    "{a} {shift}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_halves_shift_equals_the_i128_shift() {
+        let xs = [
+            0i128,
+            1,
+            -1,
+            (1 << 33) - 1,
+            -(1 << 33),
+            i128::from(i64::MAX) << 33,
+            i128::from(i64::MIN) << 33,
+            0x1234_5678_9ABC_DEF0_1357_9BDF_0246_8ACE,
+            -0x1234_5678_9ABC_DEF0_1357_9BDF_0246_8ACE,
+            i128::MAX,
+            i128::MIN,
+        ];
+        for x in xs {
+            for shift in 0..=127 {
+                assert_eq!(
+                    shr_i128_to_i64(x, shift),
+                    (x >> shift) as i64,
+                    "{x} >> {shift}"
+                );
+            }
+        }
     }
 
     #[test]

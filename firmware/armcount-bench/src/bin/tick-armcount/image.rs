@@ -29,6 +29,11 @@ marker!(armcost_mark_finish, 0x4444_0003u32);
 marker!(armcost_mark_profile, 0x5555_0004u32);
 marker!(armcost_mark_cal, 0x6666_0005u32);
 marker!(armcost_mark_dump, 0x7777_0006u32);
+marker!(armcost_mark_prepare2, 0x2222_0007u32);
+marker!(armcost_mark_run2, 0x3333_0008u32);
+marker!(armcost_mark_finish2, 0x4444_0009u32);
+// Not a counter: ends a tick (the plugin's `epoch`), run while counting is off.
+marker!(armcost_epoch, 0x8888_000Au32);
 
 #[panic_handler]
 fn panic(_: &core::panic::PanicInfo) -> ! {
@@ -40,6 +45,8 @@ fn panic(_: &core::panic::PanicInfo) -> ! {
 struct Bus {
     sim: SimChain,
     counting: bool,
+    /// The marker that resumes the run counter after a window.
+    resume: extern "C" fn(),
 }
 
 impl ChainBus for Bus {
@@ -50,7 +57,7 @@ impl ChainBus for Bus {
         }
         let r = self.sim.window(tx, rx);
         if self.counting {
-            armcost_mark_run();
+            (self.resume)();
         }
         r
     }
@@ -64,11 +71,45 @@ fn limits() -> Limits {
     }
 }
 
+/// One tick's three counted regions.
+struct Marks {
+    prepare: extern "C" fn(),
+    run: extern "C" fn(),
+    finish: extern "C" fn(),
+}
+
+/// One control tick through the blocking chain, each region between its
+/// marker and `armcost_mark_off`; then the simulated chips' time.
+fn tick(
+    group: &mut AxisGroup,
+    chain: &mut Chain<Bus>,
+    replies: &mut Replies,
+    m: &Marks,
+    tick_ns: u64,
+) {
+    (m.prepare)();
+    let plan = group.prepare().ok();
+    armcost_mark_off();
+    if let Some(plan) = plan {
+        (m.run)();
+        let r = chain.run_into(black_box(plan), replies);
+        armcost_mark_off();
+        if r.is_err() {
+            *replies = Replies::default();
+        }
+        (m.finish)();
+        group.finish(black_box(replies));
+        armcost_mark_off();
+    }
+    chain.bus_mut().sim.advance(tick_ns);
+}
+
 #[entry]
 fn main() -> ! {
     let mut chain = Chain::new(Bus {
         sim: SimChain::new(8),
         counting: false,
+        resume: armcost_mark_run,
     });
     if chain.detect() != Ok(8) {
         semihosting::process::exit(2)
@@ -98,29 +139,55 @@ fn main() -> ! {
         }
     }
     chain.bus_mut().counting = true;
+    let marks = Marks {
+        prepare: armcost_mark_prepare,
+        run: armcost_mark_run,
+        finish: armcost_mark_finish,
+    };
     for _ in 0..N {
-        armcost_mark_prepare();
-        let plan = group.prepare().ok();
-        armcost_mark_off();
-        let ran = if let Some(plan) = plan {
-            armcost_mark_run();
-            let r = chain.run_into(black_box(plan), &mut replies);
-            armcost_mark_off();
-            if r.is_err() {
-                replies = Replies::default();
-            }
-            true
-        } else {
-            false
-        };
-        if ran {
-            armcost_mark_finish();
-            group.finish(black_box(&replies));
-            armcost_mark_off();
-        }
-        chain.bus_mut().sim.advance(tick_ns);
+        tick(&mut group, &mut chain, &mut replies, &marks, tick_ns);
         armcost_mark_cal();
         armcost_mark_off();
+        armcost_epoch();
+    }
+    // The moves workload: every axis moves back and forth (40 000 logical
+    // steps, a triangle profile: ramps, braking, stop and landing, the
+    // next move's start), each starting when the last one has landed.
+    chain.bus_mut().resume = armcost_mark_run2;
+    let marks = Marks {
+        prepare: armcost_mark_prepare2,
+        run: armcost_mark_run2,
+        finish: armcost_mark_finish2,
+    };
+    // Stop the long moves first (not measured).
+    chain.bus_mut().counting = false;
+    for k in 0..8 {
+        if let Some(a) = group.axis_mut(k) {
+            a.soft_stop();
+        }
+    }
+    for _ in 0..200_000 {
+        if group.is_settled() {
+            break;
+        }
+        let _ = group.tick(&mut chain);
+        chain.bus_mut().sim.advance(tick_ns);
+    }
+    chain.bus_mut().counting = true;
+    let mut out = [true; 8];
+    for _ in 0..N {
+        for (k, o) in out.iter_mut().enumerate() {
+            if let Some(a) = group.axis_mut(k) {
+                if a.is_settled() {
+                    let here = a.required_position();
+                    a.move_to(if *o { here + 40_000 } else { here - 40_000 });
+                    *o = !*o;
+                }
+            }
+        }
+        tick(&mut group, &mut chain, &mut replies, &marks, tick_ns);
+        armcost_mark_off();
+        armcost_epoch();
     }
     chain.bus_mut().counting = false;
     let mut p = Profile::new(TICK_US, limits());

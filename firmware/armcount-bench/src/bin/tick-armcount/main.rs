@@ -19,5 +19,10 @@
 #[cfg(target_os = "none")]
 mod image;
 
+/// memory.x's code in SRAM, copied before anything runs.
+#[cfg(target_os = "none")]
+#[path = "../../ramtext.rs"]
+mod ramtext;
+
 #[cfg(not(target_os = "none"))]
 fn main() {}

@@ -268,15 +268,34 @@ impl Axis {
     }
 
     /// The limits the profile may use now (module doc).
-    pub(super) fn effective_limits(&self) -> Limits {
+    pub(super) fn effective_limits(&mut self) -> Limits {
         let shift = self.cfg.logical_shift;
         let mut l = units::clamp_to_chip(self.limits.requested, shift);
         let chip_may_move = !matches!(self.state, AxisState::Idle | AxisState::Setup(_));
         if chip_may_move {
-            l.acc = l.acc.min(units::ramp_capability(self.limits.acc, shift));
-            l.dec = l.dec.min(units::ramp_capability(self.limits.dec, shift));
+            let (acc, dec) = self.ramp_capabilities();
+            l.acc = l.acc.min(acc);
+            l.dec = l.dec.min(dec);
         }
         l
+    }
+
+    /// [`units::ramp_capability`] of the chip's ACC and DEC, worked out
+    /// again only when they or the step mode change (every move start asks;
+    /// the 128-bit arithmetic costs ~1 000 instructions).
+    fn ramp_capabilities(&mut self) -> (u32, u32) {
+        let key = (self.limits.acc, self.limits.dec, self.cfg.logical_shift);
+        if let Some((k, caps)) = self.memo.ramps {
+            if k == key {
+                return caps;
+            }
+        }
+        let caps = (
+            units::ramp_capability(key.0, key.2),
+            units::ramp_capability(key.1, key.2),
+        );
+        self.memo.ramps = Some((key, caps));
+        caps
     }
 
     pub(super) fn refresh_limits(&mut self) {
@@ -284,7 +303,12 @@ impl Axis {
         if l != self.profile.limits() {
             self.profile.set_limits(l);
         }
-        self.stop_cap = units::StopCap::new(l.dec, self.cfg.logical_shift, self.cfg.step);
+        // Worked out again only when its inputs change (as above).
+        let key = (l.dec, self.cfg.logical_shift, self.cfg.step);
+        if self.memo.stop_cap != Some(key) {
+            self.stop_cap = units::StopCap::new(key.0, key.1, key.2);
+            self.memo.stop_cap = Some(key);
+        }
     }
 
     pub(super) fn stop_then(&mut self, after: AfterStop, cmd: Command) {

@@ -246,6 +246,8 @@ pub struct Axis {
     corr_div: Divisor,
     /// [`units::cap_to_stop`] for the profile's deceleration.
     stop_cap: units::StopCap,
+    /// The inputs `stop_cap` and the ramp capabilities were worked out for.
+    memo: LimitMemo,
     profile: Profile,
     state: AxisState,
     limits: LimitState,
@@ -280,6 +282,19 @@ pub struct Axis {
     rate: ClockRate,
 }
 
+/// What [`Axis::refresh_limits`] last worked out, by its inputs: both are
+/// pure functions of them, and a move start asks for both.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct LimitMemo {
+    /// (ACC, DEC registers, logical shift) and their ramp capabilities.
+    ramps: Option<(RampKey, (u32, u32))>,
+    /// (deceleration, logical shift, STEP_SEL) of `stop_cap`.
+    stop_cap: Option<(u32, u8, StepSel)>,
+}
+
+/// The chip's ACC and DEC registers and the logical step mode.
+type RampKey = (u32, u32, u8);
+
 /// A read of a chip register asked for by the extension space.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct RegRead {
@@ -313,6 +328,10 @@ impl Axis {
                 correction_ticks(cfg.tick_us),
             ),
             stop_cap: units::StopCap::new(limits.dec, cfg.logical_shift, cfg.step),
+            memo: LimitMemo {
+                ramps: None,
+                stop_cap: None,
+            },
             profile: Profile::new(cfg.tick_us, limits),
             state: AxisState::Setup(phase::HIZ),
             limits: LimitState {

@@ -22,11 +22,10 @@ impl Axis {
     /// where the chip should be now.
     pub fn profile_physical(&self) -> i64 {
         let fine = self.profile.position_fine();
-        let s = i128::from(self.cfg.step.shift());
-        let l = i128::from(self.cfg.logical_shift);
         // fine is in 2⁻³³ logical steps; physical = logical · 2^(S−L)
-        let shift = 33 - s + l;
-        (fine >> shift) as i64
+        // (S ≤ 8 and L ≤ 8: 25 ≤ shift ≤ 41).
+        let shift = 33 + u32::from(self.cfg.logical_shift) - self.cfg.step.shift();
+        units::shr_i128_to_i64(fine, shift)
     }
 
     pub(super) fn target_physical(&self) -> i64 {

@@ -75,30 +75,136 @@ pub struct Rate {
     pub derated: bool,
 }
 
-/// SPI1 clock of the chain (APB2 84 MHz / 32).
-pub const CHAIN_SPI_HZ: u64 = 2_625_000;
+pub mod measured;
+
 /// CS windows of a streaming batch (a read and a Run per axis).
-pub const STREAM_WINDOWS: u64 = 5;
-/// Per window besides the bytes: ≥ 800 ns CS high, ≥ 350 ns set-up (the
-/// DMA driver's TIM7 phases, 821 + 369 ns) and ~1 µs of interrupt latency.
-pub const WINDOW_OVERHEAD_NS: u64 = 2_190;
-/// The tick's computation per axis and its fixed part, ns at 168 MHz
-/// (`cargo tick-cpu`, 5 kHz build: 16 309 cycles for 8 axes streaming
-/// incl. flash wait states ≈ 12.1 µs per axis, taken as 12.5; the driver's
-/// start and hand-over ≈ 3 µs).
-pub const COMPUTE_NS_PER_AXIS: u64 = 12_500;
-pub const COMPUTE_NS_FIXED: u64 = 5_000;
+pub const STREAM_WINDOWS: u32 = 5;
 /// Share of the period the batch and the computation may take (the rest is
 /// for the bus tasks and interrupt latency).
 pub const BUDGET_PERCENT: u64 = 90;
 
-/// Time one streaming tick needs with `chips` on the chain, ns: the
-/// computation before the batch starts, then the batch on the bus (the
-/// pipelined tick absorbs the replies at the next tick).
+/// How the chain driver times a batch (drivers-core `chain_spi`, which
+/// works its own timing out with [`BusTiming::of`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BusTiming {
+    /// SCK, Hz: the fastest APB2 division at most `sck_max_hz`.
+    pub sck_hz: u32,
+    /// TIM7's CS-high gap and CS set-up, ns (whole timer-clock periods).
+    pub gap_ns: u32,
+    pub setup_ns: u32,
+    /// Per window besides the bytes: gap, set-up and [`WINDOW_SLACK_NS`],
+    /// ns.
+    pub window_ns: u32,
+    /// One byte on the wire, ns (rounded up).
+    pub byte_ns: u32,
+}
+
+/// Per window besides TIM7's gap and set-up: the window's three interrupts
+/// at ~1 µs latency each, and the DMA request and SPI start latencies (the
+/// RM0090 model with 1 µs of interrupt latency: a gap of 1 941 ns for
+/// TIM7's 821, a set-up of 1 513 ns for 369; host-tests
+/// `a_streaming_batch_takes_no_longer_than_the_timing_the_rate_is_fitted_to`).
+pub const WINDOW_SLACK_NS: u32 = 4_000;
+
+/// Smallest SPI baud-rate divider (2, 4, …, 256) giving at most `max_hz`,
+/// and its CR1.BR code.
+pub const fn sck_divider(pclk_hz: u32, max_hz: u32) -> (u32, u32) {
+    let mut div = 2;
+    let mut br = 0;
+    while div < 256 && pclk_hz / div > max_hz {
+        div *= 2;
+        br += 1;
+    }
+    (div, br)
+}
+
+/// Clock cycles of `hz` for `ns` nanoseconds, rounded up.
+pub const fn cycles(ns: u32, hz: u32) -> u32 {
+    let c = (ns as u64 * hz as u64).div_ceil(1_000_000_000);
+    if c > u32::MAX as u64 {
+        u32::MAX
+    } else {
+        c as u32
+    }
+}
+
+/// A one-pulse timer with ARR = `ticks` at `hz`: the pulse lasts ticks + 1
+/// timer-clock periods, ns (rounded down).
+const fn timer_pulse_ns(ticks: u32, hz: u32) -> u32 {
+    let hz = if hz == 0 { 1 } else { hz } as u64;
+    let t = (ticks as u64 + 1) * 1_000_000_000 / hz;
+    if t > u32::MAX as u64 {
+        u32::MAX
+    } else {
+        t as u32
+    }
+}
+
+impl BusTiming {
+    /// The timing of a chain on SPI at `pclk2_hz` (SCK at most
+    /// `sck_max_hz`) with TIM7 at `timclk_hz` making a CS-high gap of at
+    /// least `deselect_ns` and a set-up of at least `setup_ns`.
+    pub const fn of(
+        pclk2_hz: u32,
+        timclk_hz: u32,
+        sck_max_hz: u32,
+        deselect_ns: u32,
+        setup_ns: u32,
+    ) -> BusTiming {
+        let (div, _) = sck_divider(pclk2_hz, sck_max_hz);
+        let sck_hz = pclk2_hz / div;
+        let gap_ns = timer_pulse_ns(cycles(deselect_ns, timclk_hz), timclk_hz);
+        let setup_ns = timer_pulse_ns(cycles(setup_ns, timclk_hz), timclk_hz);
+        let byte = 8_000_000_000u64.div_ceil(if sck_hz == 0 { 1 } else { sck_hz } as u64);
+        BusTiming {
+            sck_hz,
+            gap_ns,
+            setup_ns,
+            window_ns: gap_ns
+                .saturating_add(setup_ns)
+                .saturating_add(WINDOW_SLACK_NS),
+            byte_ns: if byte > u32::MAX as u64 {
+                u32::MAX
+            } else {
+                byte as u32
+            },
+        }
+    }
+
+    /// A batch of `windows` windows on `chips` chips, ns.
+    pub const fn batch_ns(&self, windows: u32, chips: u32) -> u64 {
+        windows as u64 * (self.window_ns as u64 + chips as u64 * self.byte_ns as u64)
+    }
+}
+
+/// The board's chain (`platform/stm32f405.rs`'s clocks: APB2 84 MHz, TIM7
+/// at 84 MHz; the driver's limits: SCK ≤ 4 MHz, t_disCS 800 ns, t_setCS
+/// 350 ns). The firmware asks its driver instead; host-tests checks that
+/// the driver on the RM0090 model at these clocks says the same.
+pub const BOARD_BUS: BusTiming = BusTiming::of(84_000_000, 84_000_000, 4_000_000, 800, 350);
+
+/// The tick's computation for `chips` axes, ns: the measured cycles of the
+/// worst 8-axis tick ([`measured`]: every axis starting a move at once;
+/// the costlier of the 1 and 5 kHz builds) per axis, plus the chain
+/// driver's start and hand-over. A chain fitted to it holds every tick.
+pub const fn compute_ns(chips: usize) -> u64 {
+    let t1 = measured::TICK_CYCLES_8_AXES_1KHZ as u64;
+    let t5 = measured::TICK_CYCLES_8_AXES_5KHZ as u64;
+    let per_axis = (if t1 > t5 { t1 } else { t5 }).div_ceil(8);
+    let cycles = chips as u64 * per_axis + measured::CHAIN_DRIVER_TICK_CYCLES as u64;
+    (cycles * 1_000_000_000).div_ceil(measured::SYSCLK_HZ as u64)
+}
+
+/// Time one streaming tick needs with `chips` on a chain timed by `bus`,
+/// ns: the computation before the batch starts, then the batch on the bus
+/// (the pipelined tick absorbs the replies at the next tick).
+pub const fn tick_need_ns_on(chips: usize, bus: BusTiming) -> u64 {
+    compute_ns(chips) + bus.batch_ns(STREAM_WINDOWS, chips as u32)
+}
+
+/// [`tick_need_ns_on`] the board's chain ([`BOARD_BUS`]).
 pub const fn tick_need_ns(chips: usize) -> u64 {
-    let n = chips as u64;
-    let bytes_ns = n * 8 * 1_000_000_000 / CHAIN_SPI_HZ;
-    COMPUTE_NS_FIXED + n * COMPUTE_NS_PER_AXIS + STREAM_WINDOWS * (bytes_ns + WINDOW_OVERHEAD_NS)
+    tick_need_ns_on(chips, BOARD_BUS)
 }
 
 /// The fastest rate at most `hz` whose period holds a streaming tick of
@@ -231,7 +337,7 @@ mod fit_tests {
 
     #[test]
     fn eight_chips_at_5_khz_run_at_2_5_khz() {
-        // 5 k + 100 k + 5 · (24 381 + 2 190) ≈ 238 µs > 90 % of 200 µs.
+        // ~113 µs of computation (the worst tick) + 5 · (24 384 + 5 190) ns ≈ 261 µs > 90 % of 200 µs.
         assert!(tick_need_ns(8) > 180_000);
         assert_eq!(
             fit(5000, 8),
@@ -264,6 +370,22 @@ mod fit_tests {
         assert_eq!(fit_need(1000, 200_000).hz, 1000);
         assert!(!fit_need(1000, 900_000).derated);
         assert_eq!(fit_need(1000, 900_001).hz, 500);
+    }
+
+    #[test]
+    fn the_fastest_rate_of_each_chain_length_in_a_5_khz_build() {
+        // The measured cost (rate/measured.rs) on the board's bus
+        // (docs/performance.md, "the control tick", states this table).
+        let hz: [u32; 8] = core::array::from_fn(|k| fit(5000, k + 1).hz);
+        assert_eq!(hz, [5000, 5000, 5000, 5000, 5000, 2500, 2500, 2500]);
+    }
+
+    #[test]
+    fn the_board_bus_is_2_625_mhz_with_tim7_gaps_of_whole_cycles() {
+        assert_eq!(BOARD_BUS.sck_hz, 2_625_000);
+        // 68 + 1 and 30 + 1 periods of 84 MHz.
+        assert_eq!((BOARD_BUS.gap_ns, BOARD_BUS.setup_ns), (821, 369));
+        assert_eq!(BOARD_BUS.byte_ns, 3048);
     }
 
     #[test]

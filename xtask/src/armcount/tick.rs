@@ -1,0 +1,201 @@
+//! `cargo xtask tick-cpu`: the control tick of 8 axes against simulated
+//! chips (`firmware/armcount-bench`'s `tick-armcount`), two workloads:
+//! *cruise* (every axis streaming a long move far from its target, every
+//! tick the same: counters 1–3) and *moves* (every axis moving 40 000
+//! logical steps back and forth: ramps, braking, the stop and the landing,
+//! the next move's start; counters 6–8), with each part's largest count in
+//! any one tick (the plugin's epochs) for the worst tick.
+
+use super::*;
+
+/// `cargo xtask tick-cpu`.
+pub fn tick_cpu(args: &[String]) -> Result {
+    const N: f64 = 20_000.0;
+    setup::ensure_target()?;
+    let qemu = setup::qemu()?;
+    let plugin = plugin()?;
+    let elf = bench_image("tick-armcount", &["sim"])?;
+    let d = objdump(&elf, true)?;
+    let out = util::target_dir().join("armcount-bench/tick.out");
+    let c = count(
+        &qemu,
+        &plugin,
+        &d,
+        &Run {
+            elf: &elf,
+            marks: &[
+                "armcost_mark_off",
+                "armcost_mark_prepare",
+                "armcost_mark_run",
+                "armcost_mark_finish",
+                "armcost_mark_profile",
+                "armcost_mark_cal",
+                "armcost_mark_prepare2",
+                "armcost_mark_run2",
+                "armcost_mark_finish2",
+            ],
+            dump: "armcost_mark_dump",
+            serials: &["none"],
+            epoch: Some("armcost_epoch"),
+            semihosting: "enable=on,target=native".into(),
+            out,
+        },
+    )?;
+    let names = [
+        "prepare (plan + profile generator + schedule/encode)",
+        "run_into minus bus windows (window loop + decode)",
+        "finish (absorb replies)",
+        "profile mode: one Profile::tick",
+        "calibration: empty marker pair",
+    ];
+    println!("N = {N} ticks; Thumb-2 instructions per tick (per call for counters 4 and 5)\n");
+    let s: Vec<Stats> = (1..=5).map(|k| stats(&d, &c, k, N)).collect();
+    for (k, (name, st)) in names.iter().zip(&s).enumerate() {
+        print_counter(k + 1, name, st);
+    }
+    let [prepare, run, finish, profile, _cal] = &s[..] else {
+        bail!("five counters expected");
+    };
+    let tick = [prepare, run, finish];
+    let pf = prepare.net + finish.net;
+    let insn: f64 = tick.iter().map(|t| t.net).sum();
+    println!(
+        "SUMMARY whole 8-axis tick: prepare+finish (callgrind's scope) {pf:.0} insns ({:.0}/axis); + run_into CPU part {insn:.0} ({:.0}/axis)",
+        pf / 8.0,
+        insn / 8.0
+    );
+    for (i, (name, _)) in cycles::MODELS.iter().enumerate() {
+        let c1 = prepare.cycles[i] + finish.cycles[i];
+        println!(
+            "  cycles ({name}): prepare+finish {c1:.0}; with run_into {:.0}",
+            c1 + run.cycles[i]
+        );
+    }
+    let warm = tick
+        .iter()
+        .fold((0.0, 0.0), |a, t| (a.0 + t.warm.0, a.1 + t.warm.1));
+    let cold = tick
+        .iter()
+        .fold((0.0, 0.0), |a, t| (a.0 + t.cold.0, a.1 + t.cold.1));
+    println!(
+        "  ART misses/tick (counters 1-3): warm {:.0} seq + {:.0} jump; cold {:.0} seq + {:.0} jump",
+        warm.0, warm.1, cold.0, cold.1
+    );
+    println!(
+        "SUMMARY profile generator: {:.0} insns/axis-tick, cycles {:.0} / {:.0} / {:.0}",
+        profile.net, profile.cycles[0], profile.cycles[1], profile.cycles[2]
+    );
+    println!();
+    let div: f64 = tick
+        .iter()
+        .flat_map(|t| t.calls.iter())
+        .filter(|(f, _)| f.starts_with("__aeabi_"))
+        .map(|(_, c)| c)
+        .sum::<f64>()
+        .max(0.0);
+    let core: f64 = tick.iter().map(|t| t.cycles[1]).sum();
+    let flash: f64 = tick.iter().map(|t| t.flash_wait()).sum();
+    let total = core + flash;
+    let tick_us = 1_000_000 / tick_hz().max(1);
+    println!(
+        "RESULT tick {tick_us} us, 8 axes: {insn:.0} Thumb-2 instructions per tick, {:.0} per axis-tick; 64-bit division calls per tick: {div:.2}",
+        insn / 8.0
+    );
+    println!(
+        "RESULT profile generator: {:.0} instructions per axis-tick",
+        profile.net
+    );
+    println!(
+        "RESULT ART misses per tick (64 x 16 B, LRU, the tick's code alone): {:.0} sequential + {:.0} jumps; with the simulated chips' code in between: {:.0} + {:.0}",
+        warm.0, warm.1, cold.0, cold.1
+    );
+    println!(
+        "RESULT cycles per tick: {core:.0} core + {flash:.0} flash wait = {total:.0} ({WAIT_STATES} wait states; 0 wait states: {core:.0})"
+    );
+    // memory.x's `.ramtext`: what of the tick ran from SRAM (no ART, no
+    // wait states; fetches share the S-bus with data, not modelled).
+    let ram = c
+        .pcs
+        .iter()
+        .filter(|p| (1..=3).contains(&p.counter) && p.pc >= 0x2000_0000)
+        .map(|p| p.count)
+        .sum::<u64>() as f64
+        / N;
+    println!(
+        "RESULT run from SRAM: {ram:.0} of the {:.0} instructions per tick",
+        tick.iter().map(|t| t.raw).sum::<f64>()
+    );
+    for hz in RATES_HZ {
+        println!(
+            "RESULT CPU share of the tick's computation at {} kHz: {:.1} %",
+            hz / 1000,
+            share(total, hz)
+        );
+    }
+    let moves: Vec<Stats> = (6..=8).map(|k| stats(&d, &c, k, N)).collect();
+    let (m_insn, m_cyc, worst) = workload(&c, &moves, 6);
+    let (_, _, c_worst) = workload(&c, &s[..3], 1);
+    println!(
+        "RESULT moves workload (8 axes back and forth: ramps, braking, landing, starts): {m_insn:.0} instructions per tick, {:.0} per axis-tick; {m_cyc:.0} cycles",
+        m_insn / 8.0
+    );
+    // The worst single tick (all of its parts in one tick, the plugin's
+    // epoch total), less the markers' share (the smaller of the two
+    // workloads'); the sum of each part's largest, from different ticks,
+    // bounds it from above.
+    let overhead = |ks: &[usize]| -> f64 {
+        ks.iter()
+            .filter_map(|k| s.get(k - 1).or_else(|| moves.get(k - 6)))
+            .map(|t| t.raw - t.net)
+            .sum::<f64>()
+    };
+    let markers = overhead(&[1, 2, 3, 5]).min(overhead(&[6, 7, 8]));
+    let bound = worst.max(c_worst);
+    let (w, at) = match c.epoch_max {
+        Some((max, at)) => ((max as f64 - markers).max(0.0), at),
+        None => (bound, 0),
+    };
+    let w_cyc = w * m_cyc / m_insn.max(1.0);
+    println!(
+        "RESULT worst tick: {w:.0} instructions ({:.0} per axis-tick; tick {at} of the bench, {}), ~{w_cyc:.0} cycles, CPU share at 5 kHz {:.1} %; each part's largest summed: cruise {c_worst:.0}, moves {worst:.0}",
+        w / 8.0,
+        if at <= N as u64 { "cruise" } else { "moves" },
+        share(w_cyc, 5000)
+    );
+    // Where issue 22 started (a5b142a, this bench's cruise workload, code
+    // in flash), to compare with the lines above (docs/performance.md).
+    println!(
+        "RESULT before (a5b142a, 1 kHz build, cruise): 9285 instructions per tick, 1161 per axis-tick, 0 64-bit divisions, ART misses 1030 + 239, cycles 13472 + 3768 flash wait = 17240, CPU 10.3 / 20.5 / 51.3 / 102.6 % at 1 / 2 / 5 / 10 kHz"
+    );
+    let name = if tick_hz() >= 5000 {
+        "TICK_CYCLES_8_AXES_5KHZ"
+    } else {
+        "TICK_CYCLES_8_AXES_1KHZ"
+    };
+    // The fit takes the worst tick (every axis starting at once), so that
+    // a chain it fits holds every tick, not only the mean one.
+    cost::check(name, total.max(m_cyc).max(w_cyc), write_flag(args))
+}
+
+/// Per tick of a workload whose three parts are counters `first`..: the
+/// mean net instructions and cycles (0 wait states: the tick runs from
+/// SRAM) and the worst tick's instructions (each part's largest count in
+/// one tick less its markers' share, summed: an upper bound).
+fn workload(c: &Counts, parts: &[Stats], first: usize) -> (f64, f64, f64) {
+    let insn: f64 = parts.iter().map(|t| t.net).sum();
+    let cyc: f64 = parts.iter().map(|t| t.cycles[1] + t.flash_wait()).sum();
+    let worst: f64 = parts
+        .iter()
+        .enumerate()
+        .map(|(i, t)| {
+            let max = c.totals.get(&(first + i)).map_or(0, |x| x.epoch_max) as f64;
+            (max - (t.raw - t.net)).max(0.0)
+        })
+        .sum();
+    (insn, cyc, worst)
+}
+
+/// `--write`: put the measurement into `rate/measured.rs` ([`cost`]).
+pub(super) fn write_flag(args: &[String]) -> bool {
+    args.iter().any(|a| a == "--write")
+}
