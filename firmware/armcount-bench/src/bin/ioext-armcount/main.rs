@@ -15,7 +15,8 @@ mod image;
 
 /// memory.x's code in SRAM, copied before anything runs.
 #[cfg(target_os = "none")]
-#[path = "../../ramtext.rs"]
+// The firmware's own `__pre_init`, so the bench images copy `.ramtext` the same way.
+#[path = "../../../../src/ramtext.rs"]
 mod ramtext;
 
 #[cfg(not(target_os = "none"))]
