@@ -17,14 +17,8 @@
 #![cfg_attr(target_os = "none", no_std, no_main)]
 // An on-target test, not bus input: it may index, unwrap, panic and (like
 // the drivers) touch registers in `unsafe` blocks.
-#![allow(
-    unsafe_code,
-    clippy::indexing_slicing,
-    clippy::arithmetic_side_effects,
-    clippy::unwrap_used,
-    clippy::expect_used,
-    clippy::panic
-)]
+#![allow(unsafe_code, clippy::indexing_slicing, clippy::arithmetic_side_effects)]
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 #[cfg(not(target_os = "none"))]
 fn main() {}
 

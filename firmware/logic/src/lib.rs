@@ -18,16 +18,8 @@
 //! `sim`).
 #![cfg_attr(not(test), no_std)]
 // Tests are not bus input: they may index, unwrap and panic.
-#![cfg_attr(
-    test,
-    allow(
-        clippy::indexing_slicing,
-        clippy::arithmetic_side_effects,
-        clippy::unwrap_used,
-        clippy::expect_used,
-        clippy::panic
-    )
-)]
+#![cfg_attr(test, allow(clippy::indexing_slicing, clippy::arithmetic_side_effects))]
+#![cfg_attr(test, allow(clippy::unwrap_used, clippy::expect_used, clippy::panic))]
 
 pub mod bridge;
 pub mod ext_space;

@@ -7,10 +7,9 @@
 #![allow(
     clippy::indexing_slicing,
     clippy::arithmetic_side_effects,
-    clippy::unwrap_used,
-    clippy::expect_used,
-    clippy::panic
+    clippy::unwrap_used
 )]
+#![allow(clippy::expect_used, clippy::panic)]
 
 use bridge_logic::motion::{Limits, Profile};
 use proptest::prelude::*;

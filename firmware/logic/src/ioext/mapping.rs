@@ -379,9 +379,9 @@ mod tests {
     #![allow(
         clippy::indexing_slicing,
         clippy::arithmetic_side_effects,
-        clippy::unwrap_used,
-        clippy::panic
+        clippy::unwrap_used
     )]
+    #![allow(clippy::panic)]
     use super::super::WireBits;
     use super::*;
 

@@ -126,9 +126,9 @@ mod tests {
     #![allow(
         clippy::indexing_slicing,
         clippy::arithmetic_side_effects,
-        clippy::unwrap_used,
-        clippy::panic
+        clippy::unwrap_used
     )]
+    #![allow(clippy::panic)]
     use super::super::clock::{clock_plan, Clocks};
     use super::super::config::{SpiMode, WireBits};
     use super::*;
