@@ -245,42 +245,13 @@ impl Plan {
             let (Some(stream), Some(cmds)) = (streams.get_mut(d), batch.cmds.get(d)) else {
                 break;
             };
-            let mut len = 0usize;
-            let mut end = 0usize;
-            // Earliest position at which the next response-producing command may go.
-            let mut free_at = 0usize;
-            for (index, cmd) in cmds.iter().enumerate() {
-                let resp = usize::from(cmd.response_len());
-                if resp > 0 && len < free_at {
-                    len = free_at; // NOP padding (the stream is zeroed)
-                }
-                let (bytes, k) = cmd.encode().raw();
-                if len + k > MAX_WINDOWS {
-                    self.n = 0;
-                    return Err(ScheduleError::TooManyWindows);
-                }
-                // The encoding's unused tail bytes are 0 (NOP) and the next
-                // command overwrites them.
-                if let Some(cells) = stream.get_mut(len..len + 4) {
-                    cells.copy_from_slice(&bytes);
-                }
-                if resp > 0 {
-                    free_at = len + resp;
-                    end = end.max(len + 1 + resp);
-                    // Window index relative to the stream start for now.
-                    let _ = self.reads.push(ReadSlot {
-                        device: d as u8,
-                        index: index as u8,
-                        first_window: (len + 1) as u8,
-                        len: resp as u8,
-                        command: *cmd,
-                    });
-                }
-                len += k;
-            }
+            let Some((len, end)) = self.lay_stream(d, cmds, stream) else {
+                self.n = 0;
+                return Err(ScheduleError::TooManyWindows);
+            };
             if let (Some(l), Some(e)) = (lens.get_mut(d), ends.get_mut(d)) {
                 *l = len;
-                *e = end.max(len);
+                *e = end;
             }
             sync = sync.max(len);
         }
@@ -300,7 +271,70 @@ impl Plan {
             let off = lens.get(usize::from(r.device)).map_or(0, |l| sync - l);
             r.first_window += off as u8;
         }
-        for (w, row) in self.tx.iter_mut().enumerate().take(windows) {
+        self.fill_windows(&streams, &lens, sync);
+        Ok(())
+    }
+
+    /// Device `d`'s byte stream for `cmds`, written into `stream` (zeroed:
+    /// NOP padding) with a read slot per response, window indices relative
+    /// to the stream's start. Its length and the end of its last response
+    /// (at least the length), or `None` if it needs more than
+    /// [`MAX_WINDOWS`].
+    fn lay_stream(
+        &mut self,
+        d: usize,
+        cmds: &[Command],
+        stream: &mut [u8; MAX_WINDOWS + 4],
+    ) -> Option<(usize, usize)> {
+        let mut len = 0usize;
+        let mut end = 0usize;
+        // Earliest position at which the next response-producing command may go.
+        let mut free_at = 0usize;
+        for (index, cmd) in cmds.iter().enumerate() {
+            let resp = usize::from(cmd.response_len());
+            if resp > 0 && len < free_at {
+                len = free_at; // NOP padding (the stream is zeroed)
+            }
+            let (bytes, k) = cmd.encode().raw();
+            if len + k > MAX_WINDOWS {
+                return None;
+            }
+            // The encoding's unused tail bytes are 0 (NOP) and the next
+            // command overwrites them.
+            if let Some(cells) = stream.get_mut(len..len + 4) {
+                cells.copy_from_slice(&bytes);
+            }
+            if resp > 0 {
+                free_at = len + resp;
+                end = end.max(len + 1 + resp);
+                let _ = self.reads.push(ReadSlot {
+                    device: d as u8,
+                    index: index as u8,
+                    first_window: (len + 1) as u8,
+                    len: resp as u8,
+                    command: *cmd,
+                });
+            }
+            len += k;
+        }
+        Some((len, end.max(len)))
+    }
+
+    /// The transmit windows: device `d`'s stream right-aligned on `sync`,
+    /// the last device of the chain first in each window.
+    fn fill_windows(
+        &mut self,
+        streams: &[[u8; MAX_WINDOWS + 4]; MAX_DEVICES],
+        lens: &[usize; MAX_DEVICES],
+        sync: usize,
+    ) {
+        let n = usize::from(self.n);
+        for (w, row) in self
+            .tx
+            .iter_mut()
+            .enumerate()
+            .take(usize::from(self.windows))
+        {
             *row = [0; MAX_DEVICES];
             for ((stream, len), d) in streams.iter().zip(lens.iter()).zip(0..n) {
                 // Position w of the window is byte w − (sync − len) of the stream.
@@ -313,7 +347,6 @@ impl Plan {
                 }
             }
         }
-        Ok(())
     }
 
     /// The streaming tick's batch, laid out directly: every device a read
