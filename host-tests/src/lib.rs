@@ -13,3 +13,4 @@ pub mod rng;
 pub mod sim_bridge;
 pub mod svg;
 pub mod usb_bench;
+pub mod usb_manual;

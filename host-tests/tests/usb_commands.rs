@@ -5,48 +5,14 @@
 //! tables' offsets (never with the project's codec).
 
 use bridge_logic::bridge::{ResetTarget, RunMode};
-use bridge_logic::motion::axis::logical_to_physical;
 use bridge_logic::postep60::settings::DriverMode;
 use bridge_logic::postep60::Settings;
-use bridge_logic::powerstep::StepSel;
 use host_tests::usb_bench::{read, transact, write, UsbCtx, UID};
+use host_tests::usb_manual::{
+    be16, be32, le32, out, phys, trajectory, MANUAL_CONFIG, MANUAL_DEVICE,
+};
 use stepbridge_sim::Fault;
 use usbd_class_tester::prelude::*;
-
-/// An OUT report: command in `[1]`, `[63]` = 0, the rest zero.
-fn out(cmd: u8) -> [u8; 64] {
-    let mut r = [0u8; 64];
-    r[1] = cmd;
-    r
-}
-
-fn le32(b: &[u8], at: usize) -> u32 {
-    u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
-}
-
-fn be32(b: &[u8], at: usize) -> u32 {
-    u32::from_be_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
-}
-
-fn be16(b: &[u8], at: usize) -> u16 {
-    u16::from_be_bytes([b[at], b[at + 1]])
-}
-
-/// Physical microsteps of a logical position in the factory step mode (1/16 on 1/128).
-fn phys(pos: i64) -> i32 {
-    logical_to_physical(pos, 4, StepSel::OneTwentyEighth) as i32
-}
-
-/// 0xB1 OUT report: trajectory profile `profile`, final position, limits.
-fn trajectory(profile: u8, pos: i32, speed: u32, acc: u32, dec: u32) -> [u8; 64] {
-    let mut r = out(0xB1);
-    r[2] = profile;
-    r[20..24].copy_from_slice(&pos.to_le_bytes());
-    r[24..28].copy_from_slice(&speed.to_le_bytes());
-    r[28..32].copy_from_slice(&acc.to_le_bytes());
-    r[32..36].copy_from_slice(&dec.to_le_bytes());
-    r
-}
 
 // ---------------------------------------------------------- descriptors ----
 
@@ -57,20 +23,7 @@ fn device_descriptor_is_byte_for_byte_the_manual_s() {
             let d = dev
                 .device_get_descriptor(&mut cls, 1, 0, 0, 18)
                 .expect("device descriptor");
-            assert_eq!(
-                d,
-                [
-                    0x12, 0x01, // bLength, DEVICE
-                    0x00, 0x02, // bcdUSB 0x0200
-                    0x00, 0x00, 0x00, // class, subclass, protocol
-                    0x40, // bMaxPacketSize0 64
-                    0xC3, 0x1D, // idVendor 0x1DC3
-                    0x41, 0x06, // idProduct 0x0641
-                    0x00, 0x01, // bcdDevice 0x0100
-                    0x01, 0x02, 0x03, // iManufacturer, iProduct, iSerialNumber
-                    0x01, // bNumConfigurations
-                ]
-            );
+            assert_eq!(d, MANUAL_DEVICE);
         })
         .expect("with_usb");
 }
@@ -82,22 +35,7 @@ fn configuration_descriptor_is_the_manual_s_41_bytes() {
             let d = dev
                 .device_get_descriptor(&mut cls, 2, 0, 0, 255)
                 .expect("configuration");
-            assert_eq!(
-                d,
-                [
-                    // configuration: wTotalLength 0x29, 1 interface, value 1,
-                    // no string, bmAttributes 0xC0, MaxPower 0x32 (100 mA)
-                    0x09, 0x02, 0x29, 0x00, 0x01, 0x01, 0x00, 0xC0, 0x32,
-                    // interface 0, alt 0, 2 endpoints, HID 3/0/0, string 4
-                    0x09, 0x04, 0x00, 0x00, 0x02, 0x03, 0x00, 0x00, 0x04,
-                    // HID: bcdHID 0x0111, country 0, 1 descriptor: report, 0x21 bytes
-                    0x09, 0x21, 0x11, 0x01, 0x00, 0x01, 0x22, 0x21, 0x00,
-                    // EP 0x81 IN interrupt, 64 bytes, bInterval 10
-                    0x07, 0x05, 0x81, 0x03, 0x40, 0x00, 0x0A,
-                    // EP 0x01 OUT interrupt, 64 bytes, bInterval 2
-                    0x07, 0x05, 0x01, 0x03, 0x40, 0x00, 0x02,
-                ]
-            );
+            assert_eq!(d, MANUAL_CONFIG);
         })
         .expect("with_usb");
 }

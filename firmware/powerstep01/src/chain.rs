@@ -280,6 +280,8 @@ impl Plan {
     /// to the stream's start. Its length and the end of its last response
     /// (at least the length), or `None` if it needs more than
     /// [`MAX_WINDOWS`].
+    // Bounded as in `schedule_general`: every position < MAX_WINDOWS + 4.
+    #[allow(clippy::arithmetic_side_effects)]
     fn lay_stream(
         &mut self,
         d: usize,
@@ -322,6 +324,8 @@ impl Plan {
 
     /// The transmit windows: device `d`'s stream right-aligned on `sync`,
     /// the last device of the chain first in each window.
+    // Bounded as in `schedule_general`: every position < MAX_WINDOWS + 4.
+    #[allow(clippy::arithmetic_side_effects)]
     fn fill_windows(
         &mut self,
         streams: &[[u8; MAX_WINDOWS + 4]; MAX_DEVICES],

@@ -20,6 +20,7 @@ use std::io::{ErrorKind, Read, Write};
 use std::net::TcpStream;
 use std::time::Duration;
 
+use host_tests::usb_manual::{out, MANUAL_CONFIG, MANUAL_DEVICE};
 use usbip_box::postep_box::PoStepBox;
 use usbip_box::protocol::{
     self, decode_reply, encode_submit, encode_unlink, status, DeviceInfo, Reply, Submit, Unlink,
@@ -257,28 +258,6 @@ impl Rig {
     }
 }
 
-/// Manual 10.1: the device descriptor.
-const MANUAL_DEVICE: [u8; 18] = [
-    0x12, 0x01, 0x00, 0x02, 0x00, 0x00, 0x00, 0x40, 0xC3, 0x1D, 0x41, 0x06, 0x00, 0x01, 0x01, 0x02,
-    0x03, 0x01,
-];
-
-/// Manual 10.1: the configuration, interface, HID and endpoint descriptors.
-const MANUAL_CONFIG: [u8; 41] = [
-    0x09, 0x02, 0x29, 0x00, 0x01, 0x01, 0x00, 0xC0, 0x32, //
-    0x09, 0x04, 0x00, 0x00, 0x02, 0x03, 0x00, 0x00, 0x04, //
-    0x09, 0x21, 0x11, 0x01, 0x00, 0x01, 0x22, 0x21, 0x00, //
-    0x07, 0x05, 0x81, 0x03, 0x40, 0x00, 0x0A, //
-    0x07, 0x05, 0x01, 0x03, 0x40, 0x00, 0x02,
-];
-
-fn report(cmd: u8) -> [u8; 64] {
-    let mut r = [0u8; 64];
-    r[0] = 0x02;
-    r[1] = cmd;
-    r
-}
-
 fn string(d: &[u8]) -> String {
     let units: Vec<u16> = d[2..]
         .chunks(2)
@@ -389,7 +368,7 @@ fn an_out_report_on_ep1_is_answered_on_ep_0x81() {
     rig.enumerate();
     // The IN URB first, as usbhid keeps one submitted while hidraw is open.
     let urb = rig.in_urb();
-    let out = rig.out_report(&report(0x01));
+    let sent = rig.out_report(&out(0x01));
     match rig.reply() {
         Reply::Submit {
             seqnum,
@@ -397,7 +376,7 @@ fn an_out_report_on_ep1_is_answered_on_ep_0x81() {
             actual_length,
             ..
         } => {
-            assert_eq!((seqnum, status, actual_length), (out, 0, 64));
+            assert_eq!((seqnum, status, actual_length), (sent, 0, 64));
         }
         r => panic!("{r:?}"),
     }
@@ -419,8 +398,8 @@ fn an_out_report_on_ep1_is_answered_on_ep_0x81() {
         r => panic!("{r:?}"),
     }
     // The other order: the answer waits in the endpoint for the IN URB.
-    let out = rig.out_report(&report(0xC1));
-    assert!(matches!(rig.reply(), Reply::Submit { seqnum, status: 0, .. } if seqnum == out));
+    let sent = rig.out_report(&out(0xC1));
+    assert!(matches!(rig.reply(), Reply::Submit { seqnum, status: 0, .. } if seqnum == sent));
     rig.assert_quiet(5);
     rig.in_urb();
     assert!(matches!(rig.reply(), Reply::Submit { status: 0, data, .. } if data[15] == 0xC0));
@@ -431,7 +410,7 @@ fn set_report_by_control_is_taken_like_an_out_report() {
     let mut rig = Rig::new();
     rig.import();
     rig.enumerate();
-    let r = report(0xC1);
+    let r = out(0xC1);
     assert_eq!(
         rig.control_out([0x21, 0x09, 0x02, 0x02, 0, 0, 64, 0], &r),
         (0, 64)
@@ -456,7 +435,7 @@ fn unlink_cancels_a_waiting_urb_and_says_so_and_a_done_one_gets_status_0() {
         }
     );
     // No RET_SUBMIT for the unlinked URB, even once there is data.
-    rig.out_report(&report(0x01));
+    rig.out_report(&out(0x01));
     assert!(matches!(
         rig.reply(),
         Reply::Submit {
@@ -488,7 +467,7 @@ fn commands_split_at_every_byte_are_served_like_whole_ones() {
     let (a, mut bytes) = rig.submit_bytes(0, DIR_IN, 18, [0x80, 0x06, 0, 1, 0, 0, 18, 0], &[]);
     let (b, more) = rig.submit_bytes(0, DIR_OUT, 0, [0x00, 0x09, 1, 0, 0, 0, 0, 0], &[]);
     bytes.extend_from_slice(&more);
-    let (c, more) = rig.submit_bytes(1, DIR_OUT, 64, [0; 8], &report(0x01));
+    let (c, more) = rig.submit_bytes(1, DIR_OUT, 64, [0; 8], &out(0x01));
     bytes.extend_from_slice(&more);
     for byte in bytes {
         rig.send(&[byte]);
@@ -508,7 +487,7 @@ fn the_stream_0xa0_flows_into_in_urbs_every_10_ms() {
     let mut rig = Rig::new();
     rig.import();
     rig.enumerate();
-    rig.out_report(&report(0xA0));
+    rig.out_report(&out(0xA0));
     rig.reply();
     rig.in_urb();
     rig.reply_ticking(1); // the acknowledgement
@@ -529,7 +508,7 @@ fn a_client_that_goes_away_unplugs_the_device_and_a_new_import_enumerates_again(
     let mut rig = Rig::new();
     rig.import();
     rig.enumerate();
-    rig.out_report(&report(0xA0));
+    rig.out_report(&out(0xA0));
     rig.reply();
     rig.client.shutdown(std::net::Shutdown::Both).unwrap();
     for _ in 0..20 {
@@ -547,7 +526,7 @@ fn a_client_that_goes_away_unplugs_the_device_and_a_new_import_enumerates_again(
     rig.enumerate();
     assert_eq!(rig.pbox.port().resets(), 2);
     // The stream ended with the link: only the answer to the new command comes.
-    rig.out_report(&report(0x01));
+    rig.out_report(&out(0x01));
     rig.reply();
     rig.in_urb();
     assert!(matches!(rig.reply_ticking(1), Reply::Submit { data, .. } if data[5] == 0xAB));
@@ -580,7 +559,7 @@ fn a_system_reset_0x02_unplugs_and_the_next_run_is_boot_mode() {
     rig.import();
     rig.enumerate();
     let port = rig.pbox.port().clone();
-    rig.out_report(&report(0x02));
+    rig.out_report(&out(0x02));
     rig.reply();
     let mut restarted = None;
     for _ in 0..500 {

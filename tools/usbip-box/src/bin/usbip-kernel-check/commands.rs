@@ -7,8 +7,7 @@
 
 use std::time::{Duration, Instant};
 
-use bridge_logic::motion::axis::logical_to_physical;
-use bridge_logic::powerstep::StepSel;
+use host_tests::usb_manual::{be16, be32, le32, out, phys, trajectory};
 
 use crate::device::Attached;
 use crate::hid::Hid;
@@ -18,42 +17,6 @@ mod stream;
 
 /// The box's unique id (`usbip_box::postep_box::UID`), as 0x01 reports it.
 use usbip_box::postep_box::UID;
-
-fn out(cmd: u8) -> [u8; 64] {
-    let mut r = [0u8; 64];
-    r[0] = 0x02;
-    r[1] = cmd;
-    r
-}
-
-fn le32(b: &[u8], at: usize) -> u32 {
-    u32::from_le_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
-}
-
-fn be32(b: &[u8], at: usize) -> u32 {
-    u32::from_be_bytes([b[at], b[at + 1], b[at + 2], b[at + 3]])
-}
-
-fn be16(b: &[u8], at: usize) -> u16 {
-    u16::from_be_bytes([b[at], b[at + 1]])
-}
-
-/// Physical microsteps of a logical position in the factory step mode
-/// (1/16 on the chip's 1/128).
-fn phys(pos: i64) -> i32 {
-    logical_to_physical(pos, 4, StepSel::OneTwentyEighth) as i32
-}
-
-/// 0xB1: trajectory profile, final position, limits (LSB first).
-fn trajectory(profile: u8, pos: i32, speed: u32, acc: u32, dec: u32) -> [u8; 64] {
-    let mut r = out(0xB1);
-    r[2] = profile;
-    r[20..24].copy_from_slice(&pos.to_le_bytes());
-    r[24..28].copy_from_slice(&speed.to_le_bytes());
-    r[28..32].copy_from_slice(&acc.to_le_bytes());
-    r[32..36].copy_from_slice(&dec.to_le_bytes());
-    r
-}
 
 /// 0x80: DRV8711 registers, mode, temperature limit, currents, address,
 /// baud/parity (manual 10.2.3 offsets).
