@@ -263,41 +263,31 @@ impl Powerstep01 {
                 return Some(0);
             }
         }
-        if v < vt {
-            let a = self.acc();
-            if a == 0 {
-                return self.cruise(avail);
-            }
-            let n1 = (vt - v) / a;
-            if n1 == 0 {
-                self.v = vt;
-                return Some(0);
-            }
-            if avail == 0 {
-                return None;
-            }
-            let n = n1.min(avail);
-            self.ramp_up(a, n);
-            return Some(n);
+        if v == vt {
+            return self.cruise(avail);
         }
-        if v > vt {
-            let d = self.dec();
-            if d == 0 {
-                return self.cruise(avail);
-            }
-            let n1 = (v - vt) / d;
-            if n1 == 0 {
-                self.v = vt;
-                return Some(0);
-            }
-            if avail == 0 {
-                return None;
-            }
-            let n = n1.min(avail);
-            self.ramp_down(d, n);
-            return Some(n);
+        // Towards the target speed with ACC (up) or DEC (down), whole ticks
+        // of the rate, then the remainder in one step.
+        let up = v < vt;
+        let rate = if up { self.acc() } else { self.dec() };
+        if rate == 0 {
+            return self.cruise(avail);
         }
-        self.cruise(avail)
+        let n1 = v.abs_diff(vt) / rate;
+        if n1 == 0 {
+            self.v = vt;
+            return Some(0);
+        }
+        if avail == 0 {
+            return None;
+        }
+        let n = n1.min(avail);
+        if up {
+            self.ramp_up(rate, n);
+        } else {
+            self.ramp_down(rate, n);
+        }
+        Some(n)
     }
 
     /// Finish a positioning command: `remaining` microsteps in `dir` land
