@@ -243,6 +243,22 @@ impl Powerstep01 {
         self.frac = 0;
     }
 
+    /// Whole ticks of a ramp of `rate` per tick over the speed gap `gap`
+    /// that ends at `to`, at most `avail`. `Err` is the step's result when
+    /// none is left: less than one tick of the rate (the speed is set to
+    /// `to`, `Some(0)`) or no time (`None`).
+    fn ramp_ticks(&mut self, gap: u64, rate: u64, to: u64, avail: u64) -> Result<u64, Option<u64>> {
+        let whole = gap / rate.max(1);
+        if whole == 0 {
+            self.v = to;
+            return Err(Some(0));
+        }
+        if avail == 0 {
+            return Err(None);
+        }
+        Ok(whole.min(avail))
+    }
+
     pub(super) fn step_speed(&mut self, dir: Direction, spd: u64, avail: u64) -> Option<u64> {
         if self.dir != dir {
             return match self.decel_to_stop(avail) {
@@ -273,15 +289,10 @@ impl Powerstep01 {
         if rate == 0 {
             return self.cruise(avail);
         }
-        let n1 = v.abs_diff(vt) / rate;
-        if n1 == 0 {
-            self.v = vt;
-            return Some(0);
-        }
-        if avail == 0 {
-            return None;
-        }
-        let n = n1.min(avail);
+        let n = match self.ramp_ticks(v.abs_diff(vt), rate, vt, avail) {
+            Ok(n) => n,
+            Err(step) => return step,
+        };
         if up {
             self.ramp_up(rate, n);
         } else {
@@ -389,15 +400,10 @@ impl Powerstep01 {
     fn ramp_down_position(&mut self, leg: Leg, to: u64, braking: bool, avail: u64) -> Option<u64> {
         let v = self.v;
         let d = self.dec();
-        let n1 = (v - to) / d.max(1);
-        if n1 == 0 {
-            self.v = to;
-            return Some(0);
-        }
-        if avail == 0 {
-            return None;
-        }
-        let n = n1.min(avail);
+        let n = match self.ramp_ticks(v - to, d, to, avail) {
+            Ok(n) => n,
+            Err(step) => return step,
+        };
         if let Some(j) = first_true(1, n, |j| leg.reaches(s_down(v, d, j))) {
             self.land(leg.dir, leg.remaining);
             return Some(j);
@@ -422,15 +428,10 @@ impl Powerstep01 {
         if a == 0 {
             return self.cruise_position(leg.dir, leg.target, leg.remaining, leg.r, b, avail);
         }
-        let n1 = (vmax - v) / a;
-        if n1 == 0 {
-            self.v = vmax;
-            return Some(0);
-        }
-        if avail == 0 {
-            return None;
-        }
-        let n = n1.min(avail);
+        let n = match self.ramp_ticks(vmax - v, a, vmax, avail) {
+            Ok(n) => n,
+            Err(step) => return step,
+        };
         let trigger = |j: u64| {
             let moved = s_up(v, a, j);
             match brake_dist(v + a * j, vf, d) {
