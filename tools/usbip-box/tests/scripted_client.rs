@@ -42,6 +42,15 @@ struct Rig {
 }
 
 impl Rig {
+    /// A rig whose device is imported and enumerated (SET_CONFIGURATION
+    /// done), ready for reports.
+    fn enumerated() -> Rig {
+        let mut rig = Rig::new();
+        rig.import();
+        rig.enumerate();
+        rig
+    }
+
     fn new() -> Rig {
         let server = Server::bind("127.0.0.1:0", PoStepBox::device_info()).unwrap();
         let addr = server.local_addr().unwrap();
@@ -293,9 +302,7 @@ fn an_import_of_another_bus_id_is_refused() {
 
 #[test]
 fn enumeration_reads_the_manual_s_descriptors_and_configures() {
-    let mut rig = Rig::new();
-    rig.import();
-    rig.enumerate();
+    let mut rig = Rig::enumerated();
     assert_eq!(string(&rig.get_descriptor(3, 1, 255)), "PoLabs");
     assert_eq!(string(&rig.get_descriptor(3, 2, 255)), "PoStep60-256");
     // The serial is 72 bytes: a full 64-byte packet, then a short one.
@@ -329,9 +336,7 @@ fn a_no_data_out_completes_after_its_status_and_the_next_in_gets_its_own_data() 
 
 #[test]
 fn a_refused_request_stalls_at_once_and_the_next_one_works() {
-    let mut rig = Rig::new();
-    rig.import();
-    rig.enumerate();
+    let mut rig = Rig::enumerated();
     // BOS (type 15): a USB 2.00 device has none.
     let (st, data) = rig.control_in([0x80, 0x06, 0, 15, 0, 0, 5, 0]);
     assert_eq!((st, data.len()), (status::STALL, 0));
@@ -348,9 +353,7 @@ fn a_refused_request_stalls_at_once_and_the_next_one_works() {
 
 #[test]
 fn the_report_descriptor_comes_from_the_interface() {
-    let mut rig = Rig::new();
-    rig.import();
-    rig.enumerate();
+    let mut rig = Rig::enumerated();
     assert_eq!(
         rig.control_out([0x21, 0x0A, 0, 0, 0, 0, 0, 0], &[]),
         (0, 0),
@@ -363,9 +366,7 @@ fn the_report_descriptor_comes_from_the_interface() {
 
 #[test]
 fn an_out_report_on_ep1_is_answered_on_ep_0x81() {
-    let mut rig = Rig::new();
-    rig.import();
-    rig.enumerate();
+    let mut rig = Rig::enumerated();
     // The IN URB first, as usbhid keeps one submitted while hidraw is open.
     let urb = rig.in_urb();
     let sent = rig.out_report(&out(0x01));
@@ -407,9 +408,7 @@ fn an_out_report_on_ep1_is_answered_on_ep_0x81() {
 
 #[test]
 fn set_report_by_control_is_taken_like_an_out_report() {
-    let mut rig = Rig::new();
-    rig.import();
-    rig.enumerate();
+    let mut rig = Rig::enumerated();
     let r = out(0xC1);
     assert_eq!(
         rig.control_out([0x21, 0x09, 0x02, 0x02, 0, 0, 64, 0], &r),
@@ -421,9 +420,7 @@ fn set_report_by_control_is_taken_like_an_out_report() {
 
 #[test]
 fn unlink_cancels_a_waiting_urb_and_says_so_and_a_done_one_gets_status_0() {
-    let mut rig = Rig::new();
-    rig.import();
-    rig.enumerate();
+    let mut rig = Rig::enumerated();
     let urb = rig.in_urb();
     rig.assert_quiet(3);
     let u = rig.unlink(urb);
@@ -484,9 +481,7 @@ fn commands_split_at_every_byte_are_served_like_whole_ones() {
 
 #[test]
 fn the_stream_0xa0_flows_into_in_urbs_every_10_ms() {
-    let mut rig = Rig::new();
-    rig.import();
-    rig.enumerate();
+    let mut rig = Rig::enumerated();
     rig.out_report(&out(0xA0));
     rig.reply();
     rig.in_urb();
@@ -505,9 +500,7 @@ fn the_stream_0xa0_flows_into_in_urbs_every_10_ms() {
 
 #[test]
 fn a_client_that_goes_away_unplugs_the_device_and_a_new_import_enumerates_again() {
-    let mut rig = Rig::new();
-    rig.import();
-    rig.enumerate();
+    let mut rig = Rig::enumerated();
     rig.out_report(&out(0xA0));
     rig.reply();
     rig.client.shutdown(std::net::Shutdown::Both).unwrap();
@@ -555,9 +548,7 @@ fn garbage_after_an_import_closes_the_connection_without_a_panic() {
 
 #[test]
 fn a_system_reset_0x02_unplugs_and_the_next_run_is_boot_mode() {
-    let mut rig = Rig::new();
-    rig.import();
-    rig.enumerate();
+    let mut rig = Rig::enumerated();
     let port = rig.pbox.port().clone();
     rig.out_report(&out(0x02));
     rig.reply();
@@ -584,9 +575,7 @@ fn a_system_reset_0x02_unplugs_and_the_next_run_is_boot_mode() {
 fn a_transfer_that_ends_on_a_full_packet_at_wlength_leaves_no_zlp_behind() {
     // The serial string is 72 bytes: asked for 64, usb-device sends one full
     // packet and would follow it with a ZLP; the host is done at wLength.
-    let mut rig = Rig::new();
-    rig.import();
-    rig.enumerate();
+    let mut rig = Rig::enumerated();
     let s = rig.get_descriptor(3, 3, 64);
     assert_eq!(s.len(), 64);
     assert_eq!(rig.get_descriptor(1, 0, 18), MANUAL_DEVICE);
