@@ -236,6 +236,19 @@ fn last_window(hw: &IoHandle) -> CsWindow {
     hw.model().windows().last().cloned().expect("a CS window")
 }
 
+/// A 16-bit transfer after a failed one is whole: every input as the
+/// chips hold it and every output as the plan says (the logic's chain did
+/// not see the cut one), and it leaves the peripherals clean.
+fn next_transfer_is_whole(r: &mut Rig, after: &str) {
+    let next = plan(16, SpiMode::MODE0, 5);
+    let got = r.transfer(next).unwrap();
+    for i in 0..16 {
+        assert_eq!(got.get(i), input(i), "input {i} after {after}");
+        assert_eq!(r.hw.model().chips.tx_bit_output(16, i), next.tx.get(i));
+    }
+    clean(&r.hw);
+}
+
 fn clean(hw: &IoHandle) {
     let m = hw.model();
     assert_eq!(m.violations(), &[] as &[String]);
@@ -422,15 +435,7 @@ fn x9_a_transfer_error_on_any_stream_ends_the_transfer_as_a_dma_error_and_the_ne
         );
         assert!(r.hw.model().cs_high());
         clean(&r.hw);
-        // The next transfer is whole (compared with the inputs and the
-        // plan: the logic's chain did not see the cut one).
-        let next = plan(16, SpiMode::MODE0, 5);
-        let got = r.transfer(next).unwrap();
-        for i in 0..16 {
-            assert_eq!(got.get(i), input(i), "input {i} after the error");
-            assert_eq!(r.hw.model().chips.tx_bit_output(16, i), next.tx.get(i));
-        }
-        clean(&r.hw);
+        next_transfer_is_whole(&mut r, "the error");
     }
 }
 
@@ -490,12 +495,7 @@ fn a_stuck_stream_is_aborted_at_the_plans_timeout_and_the_next_transfer_works() 
         drop(m);
         clean(&r.hw);
         r.hw.model_mut().stall(ctl, stream, false);
-        let next = plan(16, SpiMode::MODE0, 5);
-        let got = r.transfer(next).unwrap();
-        for i in 0..16 {
-            assert_eq!(got.get(i), input(i), "input {i} after the abort");
-        }
-        clean(&r.hw);
+        next_transfer_is_whole(&mut r, "the abort");
     }
 }
 
