@@ -10,16 +10,19 @@ use stepbridge_sim::{Lines, ShiftChain};
 pub fn transfer(chain: &mut ShiftChain, plan: &TransferPlan) -> WireBits {
     let mut rx = WireBits::ZERO;
     let mut k = 0;
-    for h in wire(plan) {
-        let miso = chain.step(Lines {
-            cs: h.cs,
-            sck: h.sck,
-            mosi: h.mosi,
-        });
-        if h.sample {
-            rx.set(k, miso);
-            k += 1;
-        }
-    }
+    let halves = wire(plan).map(|h| {
+        (
+            Lines {
+                cs: h.cs,
+                sck: h.sck,
+                mosi: h.mosi,
+            },
+            h.sample,
+        )
+    });
+    chain.clock_transfer(halves, |miso| {
+        rx.set(k, miso);
+        k += 1;
+    });
     rx
 }

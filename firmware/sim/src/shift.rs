@@ -184,6 +184,22 @@ impl ShiftChain {
         self.sr165 = self.inputs;
     }
 
+    /// Clock a whole transfer: each half period's lines with whether the
+    /// master samples MISO at its end; `sampled` gets the sampled levels in
+    /// wire order.
+    pub fn clock_transfer(
+        &mut self,
+        halves: impl IntoIterator<Item = (Lines, bool)>,
+        mut sampled: impl FnMut(bool),
+    ) {
+        for (lines, sample) in halves {
+            let miso = self.step(lines);
+            if sample {
+                sampled(miso);
+            }
+        }
+    }
+
     /// Move the lines to `h`'s levels (CS first, then SCK, each edge seeing
     /// the levels before it), then hold them for the half period. Returns
     /// the MISO level during it (what a master sampling at its end reads).
