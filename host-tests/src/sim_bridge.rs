@@ -3,6 +3,7 @@
 use bridge_logic::bridge::{Bridge, SettingsSource};
 use bridge_logic::postep60::analog::AnalogSample;
 use bridge_logic::postep60::{PowerStage, Settings};
+use bridge_logic::powerstep::ChainBus;
 use stepbridge_sim::{Powerstep01, SimChain};
 
 /// The harnesses' control period.
@@ -87,4 +88,33 @@ pub fn template<T: Clone + 'static>(name: &'static str, make: impl FnOnce() -> T
             None => panic!("template {name:?} used with two types"),
         }
     })
+}
+
+/// A simulated chain whose bus fails while `broken` (SPI errors: no chip
+/// sees the window), for the tests of a chain that stops answering.
+#[derive(Debug)]
+pub struct Breakable {
+    pub sim: SimChain,
+    pub broken: bool,
+}
+
+impl Breakable {
+    /// `n` simulated chips, the bus working.
+    pub fn new(n: usize) -> Breakable {
+        Breakable {
+            sim: SimChain::new(n),
+            broken: false,
+        }
+    }
+}
+
+impl ChainBus for Breakable {
+    type Error = ();
+    fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), ()> {
+        if self.broken {
+            return Err(());
+        }
+        self.sim.transfer(tx, rx);
+        Ok(())
+    }
 }

@@ -7,9 +7,9 @@ use bridge_logic::bridge::{Bridge, SettingsSource};
 use bridge_logic::postep60::analog::AnalogSample;
 use bridge_logic::postep60::{PowerStage, Settings};
 use bridge_logic::powerstep::registers::Register;
-use bridge_logic::powerstep::ChainBus;
 use bridge_logic::transport::usb::codec::{cmd, status, IN_STATUS_BYTE};
 use host_tests::modbus_bench::ModbusBench;
+use host_tests::sim_bridge::Breakable;
 use stepbridge_sim::{Fault, SimChain};
 
 fn line(n: usize) -> ModbusBench {
@@ -142,30 +142,10 @@ fn diagnostics_carry_the_chain_state_tick_period_and_count_supply_and_temperatur
     assert_eq!((r[0], u32_of(&r[1..3])), (1000, 0));
 }
 
-/// A chain whose bus fails while `broken` (SPI errors, not a chip).
-struct Breakable {
-    sim: SimChain,
-    broken: bool,
-}
-
-impl ChainBus for Breakable {
-    type Error = ();
-    fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), ()> {
-        if self.broken {
-            return Err(());
-        }
-        self.sim.transfer(tx, rx);
-        Ok(())
-    }
-}
-
 #[test]
 fn the_chain_state_says_failing_then_dead_and_a_good_tick_ends_it() {
     let mut b = Bridge::new(
-        Breakable {
-            sim: SimChain::new(2),
-            broken: false,
-        },
+        Breakable::new(2),
         PowerStage::REFERENCE,
         Settings::FACTORY,
         SettingsSource::Stored,

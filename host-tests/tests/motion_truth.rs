@@ -19,6 +19,7 @@ use bridge_logic::powerstep::registers::{sign_extend_22, wrap_22, Register};
 use bridge_logic::powerstep::Command;
 use host_tests::clock::SimClock;
 use host_tests::rng::Rng;
+use host_tests::sim_bridge::Breakable;
 use host_tests::sim_bridge::{chip, chip_mut, new_bridge_at, TICK_US};
 use stepbridge_sim::{Fault, SimChain};
 
@@ -872,30 +873,10 @@ fn current_speed_reads_every_speed_up_to_65535() {
     );
 }
 
-/// A chain bus that stops answering on request.
-struct Breakable {
-    sim: SimChain,
-    broken: bool,
-}
-
-impl bridge_logic::powerstep::ChainBus for Breakable {
-    type Error = ();
-    fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), ()> {
-        if self.broken {
-            return Err(());
-        }
-        self.sim.transfer(tx, rx);
-        Ok(())
-    }
-}
-
 #[test]
 fn ten_failed_ticks_in_a_row_declare_the_chain_dead() {
     let mut b = Bridge::new(
-        Breakable {
-            sim: SimChain::new(2),
-            broken: false,
-        },
+        Breakable::new(2),
         BOARD,
         Settings::FACTORY,
         bridge_logic::bridge::SettingsSource::Stored,

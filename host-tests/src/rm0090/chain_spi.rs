@@ -618,8 +618,6 @@ impl ChainModel {
     }
 }
 
-impl ChainModel {}
-
 /// A shared handle on the model: the driver holds one, the tests another.
 pub type ChainHandle = super::Handle<ChainModel>;
 
