@@ -30,12 +30,32 @@ pub fn new_bridge_at(
         SettingsSource::Stored,
         tick_us,
     );
+    measure_24v_25c(&mut bridge);
+    bridge
+}
+
+/// A bridge on `chain` as it boots from an empty settings page: factory
+/// settings, the reference power stage, a 1 ms tick, measuring 24 V and
+/// 25 °C (not yet ticked).
+pub fn factory_bridge_on<C: ChainBus>(chain: C) -> Bridge<C> {
+    let mut bridge = Bridge::new(
+        chain,
+        PowerStage::REFERENCE,
+        Settings::FACTORY,
+        SettingsSource::FactoryEmpty,
+        TICK_US,
+    );
+    measure_24v_25c(&mut bridge);
+    bridge
+}
+
+/// The ADC's raw sample of a 24 V supply at 25 °C on the reference stage.
+fn measure_24v_25c<C: ChainBus>(bridge: &mut Bridge<C>) {
     bridge.on_analog(AnalogSample {
         supply: 1490,
         temperature: 943,
         vrefint: 1502,
     });
-    bridge
 }
 
 /// Every axis settled (profile done, chip landed and confirmed).

@@ -4,11 +4,11 @@
 //! not found still answering on its first id (Modbus) and axis 0 (USB).
 
 use bridge_logic::bridge::{Bridge, SettingsSource};
-use bridge_logic::postep60::analog::AnalogSample;
 use bridge_logic::postep60::{PowerStage, Settings};
 use bridge_logic::powerstep::registers::Register;
 use bridge_logic::transport::usb::codec::{cmd, status, IN_STATUS_BYTE};
 use host_tests::modbus_bench::ModbusBench;
+use host_tests::sim_bridge::factory_bridge_on;
 use host_tests::sim_bridge::Breakable;
 use stepbridge_sim::{Fault, SimChain};
 
@@ -176,19 +176,7 @@ fn the_chain_state_says_failing_then_dead_and_a_good_tick_ends_it() {
 fn undetected() -> Bridge<SimChain> {
     let mut chain = SimChain::new(4);
     chain.device_mut(1).unwrap().inject(Fault::Dead(0xFF));
-    let mut bridge = Bridge::new(
-        chain,
-        PowerStage::REFERENCE,
-        Settings::FACTORY,
-        SettingsSource::FactoryEmpty,
-        1000,
-    );
-    bridge.on_analog(AnalogSample {
-        supply: 1490,
-        temperature: 943,
-        vrefint: 1502,
-    });
-    bridge
+    factory_bridge_on(chain)
 }
 
 #[test]

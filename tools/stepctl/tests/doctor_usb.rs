@@ -14,9 +14,8 @@
 
 use std::time::Duration;
 
-use bridge_logic::bridge::{Bridge, SettingsSource};
-use bridge_logic::postep60::analog::AnalogSample;
-use bridge_logic::postep60::{PowerStage, Settings};
+use bridge_logic::bridge::Bridge;
+use host_tests::sim_bridge::factory_bridge_on;
 use stepbridge_sim::{Fault, SimChain};
 use stepctl::doctor::{self, Expect, Options, Verdict};
 use stepctl::usb::{Hid, Report, UsbBus};
@@ -34,18 +33,7 @@ impl BridgeHid {
         if let Some(k) = dead_at_boot {
             chain.device_mut(k).unwrap().inject(Fault::Dead(0xFF));
         }
-        let mut bridge = Bridge::new(
-            chain,
-            PowerStage::REFERENCE,
-            Settings::FACTORY,
-            SettingsSource::FactoryEmpty,
-            1000,
-        );
-        bridge.on_analog(AnalogSample {
-            supply: 1490,
-            temperature: 943,
-            vrefint: 1502,
-        });
+        let bridge = factory_bridge_on(chain);
         let mut h = BridgeHid { bridge, now_ms: 0 };
         h.run(200);
         h
