@@ -35,6 +35,21 @@ pub struct Clocks {
     pub timer_hz: u32,
 }
 
+/// The clock trees the plans are tested on: the board's, a slow equal one
+/// and one whose timer runs at 3× the SPI clock (the tests add their edge).
+#[cfg(test)]
+pub(super) const CLOCKS_UNDER_TEST: [Clocks; 3] = [
+    Clocks::BOARD,
+    Clocks {
+        spi_hz: 16_000_000,
+        timer_hz: 16_000_000,
+    },
+    Clocks {
+        spi_hz: 1_000,
+        timer_hz: 3_000,
+    },
+];
+
 impl Clocks {
     /// The board: SYSCLK 168 MHz, APB1 = 42 MHz, APB2 = 84 MHz → TIM1 at
     /// 168 MHz.
@@ -278,21 +293,10 @@ mod tests {
 
     #[test]
     fn the_period_is_never_shorter_than_requested_for_any_n_and_engine() {
-        for clocks in [
-            Clocks::BOARD,
-            Clocks {
-                spi_hz: 16_000_000,
-                timer_hz: 16_000_000,
-            },
-            Clocks {
-                spi_hz: 1_000,
-                timer_hz: 3_000,
-            },
-            Clocks {
-                spi_hz: u32::MAX,
-                timer_hz: u32::MAX,
-            },
-        ] {
+        for clocks in CLOCKS_UNDER_TEST.into_iter().chain([Clocks {
+            spi_hz: u32::MAX,
+            timer_hz: u32::MAX,
+        }]) {
             for n in 0..=255u8 {
                 for bits in [1, 8, 9, 16, 256] {
                     let p = clock_plan(n, bits, clocks);

@@ -255,7 +255,7 @@ mod tests {
         clippy::unwrap_used
     )]
     #![allow(clippy::panic)]
-    use super::super::clock::{clock_plan, Clocks, Engine};
+    use super::super::clock::{clock_plan, Clocks, Engine, CLOCKS_UNDER_TEST};
     use super::*;
 
     fn plan(bits: u16, mode: SpiMode, n: u8) -> TransferPlan {
@@ -319,21 +319,10 @@ mod tests {
         assert_eq!(p.half_period_ns(), 1_111);
         let t = p.timer().unwrap();
         assert_eq!((t.arr, t.ccr_sck), (372, 187));
-        for clocks in [
-            Clocks::BOARD,
-            Clocks {
-                spi_hz: 16_000_000,
-                timer_hz: 16_000_000,
-            },
-            Clocks {
-                spi_hz: 1_000,
-                timer_hz: 3_000,
-            },
-            Clocks {
-                spi_hz: 42_000_000,
-                timer_hz: 100_000_001,
-            },
-        ] {
+        for clocks in CLOCKS_UNDER_TEST.into_iter().chain([Clocks {
+            spi_hz: 42_000_000,
+            timer_hz: 100_000_001,
+        }]) {
             for n in 0..=255u8 {
                 for bits in [1u16, 9, 255] {
                     let mut p = plan(bits, SpiMode::MODE1, n);
