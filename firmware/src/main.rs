@@ -120,7 +120,7 @@ mod app {
     use firmware::drivers::chain_spi::ChainSpiError;
     use firmware::drivers::clock::{self, Mono};
     use firmware::drivers::i2c_slave::LockedTarget;
-    use firmware::drivers::ioext_spi::{IoExtBuffers, Started};
+    use firmware::drivers::ioext_spi::{IoExtBuffers, IoExtPeripherals, Started};
     use firmware::drivers::mcu;
     use firmware::drivers::rs485::{Rs485, Rx};
     use firmware::drivers::usb::Link;
@@ -248,17 +248,15 @@ mod app {
         let i2c = start_i2c(dp.I2C1, i2c_pins, &bridge, &mut rcc);
         let modbus_pins = (pins.modbus_tx, pins.modbus_rx, pins.modbus_de);
         let (rs485, timing) = start_modbus(dp.USART2, modbus_pins, &bridge, &mut rcc);
-        let ioext_pins = (pins.ioext_sck, pins.ioext_miso, pins.ioext_mosi);
-        let ioext = platform::ioext_driver(
-            dp.SPI2,
-            dp.TIM1,
-            dp.DMA1,
-            dp.DMA2,
-            ioext_pins,
-            pins.ioext_cs,
-            cx.local.io_buffers,
-            &mut rcc,
-        );
+        let ioext_peripherals = IoExtPeripherals {
+            spi: dp.SPI2,
+            tim: dp.TIM1,
+            dma1: dp.DMA1,
+            dma2: dp.DMA2,
+            pins: (pins.ioext_sck, pins.ioext_miso, pins.ioext_mosi),
+            cs: pins.ioext_cs,
+        };
+        let ioext = platform::ioext_driver(ioext_peripherals, cx.local.io_buffers, &mut rcc);
         let mut analog = Analog::new(dp.ADC1, pins.supply_sense, &mut rcc);
         bridge.on_analog(analog.sample());
         let tick = start_tasks(dp.TIM2, rate, &mut rcc);

@@ -220,18 +220,23 @@ impl IoExtHw for IoExtRegs {
     }
 }
 
-/// Take SPI2, TIM1, DMA1, DMA2 and the extension's pins as
-/// `pins::configure` left them (CS high) and return the port; nothing is
+/// What the I/O extension owns: SPI2, TIM1, DMA1, DMA2 and its pins (SCK,
+/// MISO, MOSI as `pins::configure` left them, CS high).
+#[derive(Debug)]
+pub struct IoExtPeripherals {
+    pub spi: IoExtSpi,
+    pub tim: IoExtTimer,
+    pub dma1: IoExtSpiDma,
+    pub dma2: IoExtTimerDma,
+    pub pins: (IoExtSck, IoExtMiso, IoExtMosi),
+    pub cs: IoExtCs,
+}
+
+/// Take the extension's peripherals and return the port; nothing is
 /// driven until the first transfer. Clocks and resets SPI2 and TIM1,
 /// clocks DMA1 and DMA2 (DMA2 is never reset: the chain uses it too).
-#[allow(clippy::too_many_arguments)]
 pub fn ioext_port(
-    spi: IoExtSpi,
-    tim: IoExtTimer,
-    dma1: IoExtSpiDma,
-    dma2: IoExtTimerDma,
-    pins: (IoExtSck, IoExtMiso, IoExtMosi),
-    cs: IoExtCs,
+    peripherals: IoExtPeripherals,
     bufs: &'static mut IoExtBuffers,
     rcc: &mut Rcc,
 ) -> IoExtPort {
@@ -242,7 +247,7 @@ pub fn ioext_port(
     IoExtSpiDma::enable(rcc);
     IoExtTimerDma::enable(rcc);
     // The pins' modes and CS are driven through GPIOB from here on.
-    let _ = (spi, tim, dma1, dma2, pins, cs);
+    let _ = peripherals;
     core_io::IoExtPort::new(IoExtRegs { bufs }, rcc.clocks.sysclk().raw())
 }
 

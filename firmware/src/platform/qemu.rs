@@ -84,12 +84,11 @@ use stm32f4xx_hal::pac;
 use stm32f4xx_hal::rcc::{Config, Enable, Rcc, RccExt, Reset};
 
 use crate::drivers::chain_spi::{ChainBuffers, ChainCell, ChainSpiError};
-use crate::drivers::ioext_spi::{IoExtBuffers, IoExtError, Started};
+use crate::drivers::ioext_spi::{IoExtBuffers, IoExtError, IoExtPeripherals, Started};
 use crate::drivers::usb::Link;
 use crate::pins::{
     self, ChainCs, ChainGapTimer, ChainMiso, ChainMosi, ChainSck, ChainSpi, HostI2c, HostI2cScl,
-    HostI2cSda, IoExtCs, IoExtMiso, IoExtMosi, IoExtSck, IoExtSpi, IoExtSpiDma, IoExtTimer,
-    IoExtTimerDma, SenseAdc, SupplySense,
+    HostI2cSda, SenseAdc, SupplySense,
 };
 use bridge_logic::transport::usb::REPORT_LEN;
 use usb_device::device::UsbDeviceState;
@@ -445,14 +444,8 @@ pub struct IoExtDriver {
 
 /// The simulated port instead of SPI2/TIM1/DMA (which, and whose pins,
 /// stay as `pins::configure` left them).
-#[allow(clippy::too_many_arguments)]
 pub fn ioext_driver(
-    _spi: IoExtSpi,
-    _tim: IoExtTimer,
-    _dma1: IoExtSpiDma,
-    _dma2: IoExtTimerDma,
-    _pins: (IoExtSck, IoExtMiso, IoExtMosi),
-    _cs: IoExtCs,
+    _peripherals: IoExtPeripherals,
     _bufs: &'static mut IoExtBuffers,
     _rcc: &mut Rcc,
 ) -> IoExtDriver {

@@ -16,11 +16,8 @@ use stm32f4xx_hal::{ClearFlags, Listen};
 
 use crate::drivers::chain_spi::{self, ChainBuffers, ChainCell};
 use crate::drivers::flash::StoreFlash;
-use crate::drivers::ioext_spi::{self, IoExtBuffers, IoExtPort};
-use crate::pins::{
-    self, ChainCs, ChainGapTimer, ChainMiso, ChainMosi, ChainSck, ChainSpi, IoExtCs, IoExtMiso,
-    IoExtMosi, IoExtSck, IoExtSpi, IoExtSpiDma, IoExtTimer, IoExtTimerDma,
-};
+use crate::drivers::ioext_spi::{self, IoExtBuffers, IoExtPeripherals, IoExtPort};
+use crate::pins::{self, ChainCs, ChainGapTimer, ChainMiso, ChainMosi, ChainSck, ChainSpi};
 
 pub use crate::drivers::analog::Analog;
 pub use crate::drivers::i2c_slave::I2cSlaveDriver;
@@ -159,20 +156,14 @@ pub fn with_chain<R>(f: impl FnOnce(&mut ChainDriver) -> R) -> Option<R> {
 /// (`drivers::ioext_spi`).
 pub type IoExtDriver = IoExtPort;
 
-/// Take SPI2, TIM1, DMA1, DMA2 and the extension's pins (nothing is driven
-/// until the first transfer; CS stays high).
-#[allow(clippy::too_many_arguments)]
+/// Take the extension's peripherals (nothing is driven until the first
+/// transfer; CS stays high).
 pub fn ioext_driver(
-    spi: IoExtSpi,
-    tim: IoExtTimer,
-    dma1: IoExtSpiDma,
-    dma2: IoExtTimerDma,
-    pins: (IoExtSck, IoExtMiso, IoExtMosi),
-    cs: IoExtCs,
+    peripherals: IoExtPeripherals,
     bufs: &'static mut IoExtBuffers,
     rcc: &mut Rcc,
 ) -> IoExtDriver {
-    ioext_spi::ioext_port(spi, tim, dma1, dma2, pins, cs, bufs, rcc)
+    ioext_spi::ioext_port(peripherals, bufs, rcc)
 }
 
 /// The settings store's flash: sectors 10 and 11.

@@ -162,19 +162,18 @@ pub fn chain(mut t: Target) -> firmware::drivers::chain_spi::ChainSpi {
 /// The I/O extension's board driver on the target's SPI2, TIM1, DMA1, DMA2
 /// and extension pins, with its `'static` buffers, as the app takes it.
 pub fn ioext_port(mut t: Target) -> firmware::drivers::ioext_spi::IoExtPort {
-    use firmware::drivers::ioext_spi::{ioext_port, IoExtBuffers};
+    use firmware::drivers::ioext_spi::{ioext_port, IoExtBuffers, IoExtPeripherals};
     let p = t.pins;
     let Some(bufs) = cortex_m::singleton!(: IoExtBuffers = IoExtBuffers::new()) else {
         defmt::panic!("buffers taken twice");
     };
-    ioext_port(
-        t.spi2,
-        t.tim1,
-        t.dma1,
-        t.dma2,
-        (p.ioext_sck, p.ioext_miso, p.ioext_mosi),
-        p.ioext_cs,
-        bufs,
-        &mut t.rcc,
-    )
+    let peripherals = IoExtPeripherals {
+        spi: t.spi2,
+        tim: t.tim1,
+        dma1: t.dma1,
+        dma2: t.dma2,
+        pins: (p.ioext_sck, p.ioext_miso, p.ioext_mosi),
+        cs: p.ioext_cs,
+    };
+    ioext_port(peripherals, bufs, &mut t.rcc)
 }
