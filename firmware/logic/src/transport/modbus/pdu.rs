@@ -179,8 +179,7 @@ fn serve(
         Pdu::WriteSingle { address, data } => {
             let req = map::write(address, 1, data)?;
             execute(axis, req, stats, target)?;
-            // Echo of the request.
-            let _ = out.extend_from_slice(pdu);
+            write_response(request, pdu, out);
         }
         Pdu::WriteMultiple {
             address,
@@ -189,12 +188,25 @@ fn serve(
         } => {
             let req = map::write(address, quantity, data)?;
             execute(axis, req, stats, target)?;
-            let _ = out.push(WRITE_MULTIPLE_REGISTERS);
-            let _ = out.extend_from_slice(&address.to_be_bytes());
-            let _ = out.extend_from_slice(&quantity.to_be_bytes());
+            write_response(request, pdu, out);
         }
     }
     Ok(())
+}
+
+/// A served write's response: 06 echoes the request, 16 answers its
+/// function code, start address and quantity.
+fn write_response(request: Pdu<'_>, pdu: &[u8], out: &mut Vec<u8, ADU_MAX>) {
+    if let Pdu::WriteMultiple {
+        address, quantity, ..
+    } = request
+    {
+        let _ = out.push(WRITE_MULTIPLE_REGISTERS);
+        let _ = out.extend_from_slice(&address.to_be_bytes());
+        let _ = out.extend_from_slice(&quantity.to_be_bytes());
+    } else {
+        let _ = out.extend_from_slice(pdu);
+    }
 }
 
 /// The response PDU for a request to the extension space (address high
@@ -223,27 +235,13 @@ fn serve_extension(
                 let _ = out.extend_from_slice(&r.to_be_bytes());
             }
         }
-        Pdu::WriteSingle { address, data } => {
+        Pdu::WriteSingle { address, data } | Pdu::WriteMultiple { address, data, .. } => {
             let mut regs = [0u16; WRITE_QUANTITY_MAX as usize];
             let n = registers_of(data, &mut regs);
             target
                 .ext_write(axis, address, regs.get(..n).unwrap_or(&[]))
                 .map_err(ext_exception)?;
-            let _ = out.extend_from_slice(pdu);
-        }
-        Pdu::WriteMultiple {
-            address,
-            quantity,
-            data,
-        } => {
-            let mut regs = [0u16; WRITE_QUANTITY_MAX as usize];
-            let n = registers_of(data, &mut regs);
-            target
-                .ext_write(axis, address, regs.get(..n).unwrap_or(&[]))
-                .map_err(ext_exception)?;
-            let _ = out.push(WRITE_MULTIPLE_REGISTERS);
-            let _ = out.extend_from_slice(&address.to_be_bytes());
-            let _ = out.extend_from_slice(&quantity.to_be_bytes());
+            write_response(request, pdu, out);
         }
     }
     Ok(())
