@@ -33,10 +33,8 @@ import sys
 import time
 
 import pymodbus
-from pymodbus import FramerType
-from pymodbus.client import ModbusTcpClient
 
-from modbus_e2e import Failure, check, i32, read
+from modbus_e2e import Failure, check, connect, i32, read, write_many
 
 OPTIONS, CONFIG, TRANSFERS, ENGINE, RECEIVE = 0x0200, 0x0202, 0x0204, 0x020A, 0x0220
 MAP_AXIS0_BIN1 = 0x0240
@@ -44,12 +42,6 @@ DRIVER_MODE_SET, DRIVER_MODE = 0x0005, 0x0014
 POSITION, SPEED = 0x0040, 0x0044
 BIN1_STEPS = 100  # PoStep60 factory BIN1 steps
 BUTTON = 3
-
-
-def write_many(client, address, values, sid=1):
-    r = client.write_registers(address, values, device_id=sid)
-    if r.isError():
-        raise Failure(f"write 0x{address:04X} = {[hex(v) for v in values]} failed: {r}")
 
 
 def u32(client, address):
@@ -133,13 +125,9 @@ def main():
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
     print(f"pymodbus {pymodbus.__version__}, RTU over tcp {args.host}:{args.port}, console on {args.console_port}")
-    client = ModbusTcpClient(args.host, port=args.port, framer=FramerType.RTU, timeout=2.0, retries=0)
-    deadline = time.monotonic() + 20
-    while not client.connect():
-        if time.monotonic() > deadline:
-            print(f"FAIL: cannot connect to {args.host}:{args.port}", file=sys.stderr)
-            return 1
-        time.sleep(0.2)
+    client = connect(args.host, args.port)
+    if client is None:
+        return 1
     try:
         console = socket.create_connection((args.host, args.console_port), timeout=20)
     except OSError as e:

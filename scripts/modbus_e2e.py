@@ -102,6 +102,25 @@ def write_one(client, address, value, sid, multiple):
         raise Failure(f"id {sid}: write 0x{address:04X} = {value} failed: {r}")
 
 
+def write_many(client, address, values, sid=1):
+    r = timed(client.write_registers, address, values, device_id=sid)
+    if r.isError():
+        raise Failure(f"id {sid}: write 0x{address:04X} = {[hex(v) for v in values]} failed: {r}")
+
+
+def connect(host, port, timeout=2.0, connect_timeout=20.0):
+    """A pymodbus client, RTU framing over the TCP socket QEMU serves the
+    USART on, once connected; None after `connect_timeout` s (reported)."""
+    client = ModbusTcpClient(host, port=port, framer=FramerType.RTU, timeout=timeout, retries=0)
+    deadline = time.monotonic() + connect_timeout
+    while not client.connect():
+        if time.monotonic() > deadline:
+            print(f"FAIL: cannot connect to {host}:{port}", file=sys.stderr)
+            return None
+        time.sleep(0.2)
+    return client
+
+
 def i32(words):
     v = (words[0] << 16) | words[1]
     return v - (1 << 32) if v & 0x8000_0000 else v
@@ -262,13 +281,9 @@ def main():
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
     print(f"pymodbus {pymodbus.__version__}, RTU framer over tcp {args.host}:{args.port}")
-    client = ModbusTcpClient(args.host, port=args.port, framer=FramerType.RTU, timeout=args.timeout, retries=0)
-    deadline = time.monotonic() + args.connect_timeout
-    while not client.connect():
-        if time.monotonic() > deadline:
-            print(f"FAIL: cannot connect to {args.host}:{args.port}", file=sys.stderr)
-            return 1
-        time.sleep(0.2)
+    client = connect(args.host, args.port, args.timeout, args.connect_timeout)
+    if client is None:
+        return 1
     t0 = time.monotonic()
     move_s = 0.0
     try:

@@ -26,41 +26,14 @@ import logging
 import sys
 import time
 
-from pymodbus import FramerType
-from pymodbus.client import ModbusTcpClient
+from modbus_e2e import Failure, connect, i32, read, words
+from modbus_e2e import write_many as write
 
 POSITION = 0x0040
 SET_POSITION = 0x0050
 SET_MAX_SPEED, SET_ACC, SET_DEC = 0x0051, 0x0052, 0x0053
 DIAG_TICK = 0x032A
 SIDS = (1, 2, 3, 4)
-
-
-class Failure(Exception):
-    pass
-
-
-def read(client, address, count, sid):
-    r = client.read_holding_registers(address, count=count, device_id=sid)
-    if r.isError():
-        raise Failure(f"id {sid}: read 0x{address:04X} x{count} failed: {r}")
-    return r.registers
-
-
-def write(client, address, values, sid):
-    r = client.write_registers(address, values, device_id=sid)
-    if r.isError():
-        raise Failure(f"id {sid}: write 0x{address:04X} = {values} failed: {r}")
-
-
-def i32(w):
-    v = (w[0] << 16) | w[1]
-    return v - (1 << 32) if v & 0x8000_0000 else v
-
-
-def words(v):
-    v &= 0xFFFF_FFFF
-    return [v >> 16, v & 0xFFFF]
 
 
 def run(client, args):
@@ -122,13 +95,9 @@ def main():
     args = ap.parse_args()
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 
-    client = ModbusTcpClient(args.host, port=args.port, framer=FramerType.RTU, timeout=args.timeout, retries=0)
-    deadline = time.monotonic() + args.connect_timeout
-    while not client.connect():
-        if time.monotonic() > deadline:
-            print(f"FAIL: cannot connect to {args.host}:{args.port}", file=sys.stderr)
-            return 2
-        time.sleep(0.2)
+    client = connect(args.host, args.port, args.timeout, args.connect_timeout)
+    if client is None:
+        return 2
     try:
         worst = run(client, args)
     except Failure as e:
