@@ -215,16 +215,23 @@ mod tests {
         }
     }
 
+    /// `n` chips, chip k's KVAL_HOLD = 0x40 + k, each sent GetParam(KVAL_HOLD)
+    /// (its answer waits in its shift register).
+    fn kval_hold_queued(n: usize) -> SimChain {
+        let mut c = SimChain::new(n);
+        for k in 0..n {
+            c.device_mut(k)
+                .unwrap()
+                .set_register_raw(Register::KvalHold, 0x40 + k as u32);
+        }
+        window(&mut c, &vec![0x29; n]);
+        c
+    }
+
     #[test]
     fn window_of_n_bytes_returns_device_n_minus_1_minus_j_output_in_rx_j() {
         for n in 1..=MAX_DEVICES {
-            let mut c = SimChain::new(n);
-            for k in 0..n {
-                c.device_mut(k)
-                    .unwrap()
-                    .set_register_raw(Register::KvalHold, 0x40 + k as u32);
-            }
-            window(&mut c, &vec![0x29; n]); // GetParam(KVAL_HOLD) to all
+            let mut c = kval_hold_queued(n);
             let rx = window(&mut c, &vec![0x00; n]);
             let want: Vec<u8> = (0..n).map(|j| 0x40 + (n - 1 - j) as u8).collect();
             assert_eq!(rx, want, "n {n}");
@@ -235,13 +242,7 @@ mod tests {
     #[test]
     fn a_longer_window_shifts_the_first_bytes_out_onto_miso() {
         for n in 1..=MAX_DEVICES {
-            let mut c = SimChain::new(n);
-            for k in 0..n {
-                c.device_mut(k)
-                    .unwrap()
-                    .set_register_raw(Register::KvalHold, 0x40 + k as u32);
-            }
-            window(&mut c, &vec![0x29; n]);
+            let mut c = kval_hold_queued(n);
             let l = n + 3;
             let tx: Vec<u8> = (0..l as u8).map(|i| 0x21 + i).collect();
             let rx = window(&mut c, &tx);
