@@ -22,22 +22,12 @@ mod common;
 
 #[cfg(target_os = "none")]
 mod support {
-    use bridge_logic::ioext::{clock_plan, Action, Clocks, SpiMode, TransferPlan, WireBits};
+    use bridge_logic::ioext::{Action, Clocks, SpiMode, TransferPlan, WireBits};
     use stm32f4xx_hal::pac;
 
     pub fn plan(bits: u16, mode: SpiMode, n: u8) -> Action {
-        let mut tx = WireBits::ZERO;
-        for i in (0..usize::from(bits)).step_by(3) {
-            tx.set(i, true);
-        }
-        Action::Transfer(TransferPlan {
-            bits,
-            mode,
-            clock: clock_plan(n, bits, Clocks::BOARD),
-            cs_low_before: false,
-            cs_hold: false,
-            tx,
-        })
+        let tx = WireBits::from_fn(bits, |i| i % 3 == 0);
+        Action::Transfer(TransferPlan::single(bits, mode, n, Clocks::BOARD, tx))
     }
 
     pub fn spi2() -> &'static pac::spi1::RegisterBlock {

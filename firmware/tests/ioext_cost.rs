@@ -36,22 +36,18 @@ marker!(mark_dump, 0x5555_0004u32);
 #[cfg(target_os = "none")]
 #[cortex_m_rt::entry]
 fn main() -> ! {
-    use bridge_logic::ioext::{clock_plan, Action, Clocks, SpiMode, TransferPlan, WireBits};
+    use bridge_logic::ioext::{Action, Clocks, SpiMode, TransferPlan, WireBits};
     let mut port = common::ioext_port(common::setup());
     let plan = |bits: u16, n: u8| {
-        let mut tx = WireBits::ZERO;
-        for i in (0..usize::from(bits)).step_by(3) {
-            tx.set(i, true);
-        }
-        Action::Transfer(TransferPlan {
+        let tx = WireBits::from_fn(bits, |i| i % 3 == 0);
+        // The board's clocks: the plans the board runs.
+        Action::Transfer(TransferPlan::single(
             bits,
-            mode: SpiMode::MODE0,
-            // The board's clocks: the plans the board runs.
-            clock: clock_plan(n, bits, Clocks::BOARD),
-            cs_low_before: false,
-            cs_hold: false,
+            SpiMode::MODE0,
+            n,
+            Clocks::BOARD,
             tx,
-        })
+        ))
     };
     // 256 bits on SPI2 at N = 0 (the CS set-up wait is 1 cycle there) and
     // on TIM1 at N = 255.

@@ -21,7 +21,7 @@ mod common;
 
 #[cfg(target_os = "none")]
 mod support {
-    use bridge_logic::ioext::{clock_plan, Action, Clocks, SpiMode, TransferPlan, WireBits};
+    use bridge_logic::ioext::{Action, Clocks, SpiMode, TransferPlan, WireBits};
     use cortex_m::peripheral::NVIC;
     use firmware::drivers::clock;
     use firmware::drivers::ioext_spi::{IoExtError, IoExtPort, Started};
@@ -61,17 +61,11 @@ mod support {
         cs_low_before: bool,
         cs_hold: bool,
     ) -> TransferPlan {
-        let mut tx = WireBits::ZERO;
-        for i in 0..usize::from(bits) {
-            tx.set(i, (i * 7 + 3) % 5 < 2);
-        }
+        let tx = WireBits::from_fn(bits, |i| (i * 7 + 3) % 5 < 2);
         TransferPlan {
-            bits,
-            mode,
-            clock: clock_plan(n, bits, Clocks::BOARD),
             cs_low_before,
             cs_hold,
-            tx,
+            ..TransferPlan::single(bits, mode, n, Clocks::BOARD, tx)
         }
     }
 

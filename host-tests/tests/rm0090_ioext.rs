@@ -11,7 +11,7 @@
 //! stuck stream aborted at the plan's timeout, and a deliberate slip the
 //! model catches.
 
-use bridge_logic::ioext::{clock_plan, Action, Clocks, Engine, SpiMode, TransferPlan, WireBits};
+use bridge_logic::ioext::{Action, Clocks, Engine, SpiMode, TransferPlan, WireBits};
 use drivers_core::dma::bits::*;
 use drivers_core::dma::Flags;
 use drivers_core::ioext_spi::bits::*;
@@ -64,18 +64,8 @@ fn rig_on<H: IoExtHw>(driver_hw: H, hw: IoHandle) -> Rig<H> {
 }
 
 fn plan(bits: u16, mode: SpiMode, n: u8) -> TransferPlan {
-    let mut tx = WireBits::ZERO;
-    for i in 0..usize::from(bits) {
-        tx.set(i, (i * 7 + 3) % 5 < 2);
-    }
-    TransferPlan {
-        bits,
-        mode,
-        clock: clock_plan(n, bits, Clocks::BOARD),
-        cs_low_before: false,
-        cs_hold: false,
-        tx,
-    }
+    let tx = WireBits::from_fn(bits, |i| (i * 7 + 3) % 5 < 2);
+    TransferPlan::single(bits, mode, n, Clocks::BOARD, tx)
 }
 
 fn is_spi(p: &TransferPlan) -> bool {

@@ -217,6 +217,15 @@ impl WireBits {
         WireBits(words)
     }
 
+    /// Bits `0..bits` set to `level(i)`, the rest 0.
+    pub fn from_fn(bits: u16, level: impl Fn(usize) -> bool) -> WireBits {
+        let mut w = WireBits::ZERO;
+        for i in 0..usize::from(bits) {
+            w.set(i, level(i));
+        }
+        w
+    }
+
     pub const fn words(&self) -> &[u16; WORDS] {
         &self.0
     }

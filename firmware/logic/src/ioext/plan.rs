@@ -59,7 +59,7 @@
 //! [`wire`](super::wire::wire); the host tests check them against simulated
 //! 74HC165/74HC595 chips.
 
-use super::clock::{ClockPlan, Engine};
+use super::clock::{clock_plan, ClockPlan, Clocks, Engine};
 use super::config::{SpiMode, WireBits};
 
 /// What the firmware must do after a control tick.
@@ -127,6 +127,19 @@ pub struct TimerSetup {
 }
 
 impl TransferPlan {
+    /// A transfer on its own (CS neither held from the one before nor after
+    /// it): `tx`'s first `bits` bits in `mode`, clock divider `n` on `clocks`.
+    pub fn single(bits: u16, mode: SpiMode, n: u8, clocks: Clocks, tx: WireBits) -> TransferPlan {
+        TransferPlan {
+            bits,
+            mode,
+            clock: clock_plan(n, bits, clocks),
+            cs_low_before: false,
+            cs_hold: false,
+            tx: tx.truncated(bits),
+        }
+    }
+
     /// Wire bit `i` of the data to send.
     pub fn mosi(&self, i: usize) -> bool {
         self.tx.get(i)
@@ -259,18 +272,8 @@ mod tests {
     use super::*;
 
     fn plan(bits: u16, mode: SpiMode, n: u8) -> TransferPlan {
-        let mut tx = WireBits::ZERO;
-        for i in (0..usize::from(bits)).step_by(3) {
-            tx.set(i, true);
-        }
-        TransferPlan {
-            bits,
-            mode,
-            clock: clock_plan(n, bits, Clocks::BOARD),
-            cs_low_before: false,
-            cs_hold: false,
-            tx,
-        }
+        let tx = WireBits::from_fn(bits, |i| i % 3 == 0);
+        TransferPlan::single(bits, mode, n, Clocks::BOARD, tx)
     }
 
     #[test]

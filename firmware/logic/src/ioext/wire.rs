@@ -129,19 +129,12 @@ mod tests {
         clippy::unwrap_used
     )]
     #![allow(clippy::panic)]
-    use super::super::clock::{clock_plan, Clocks};
+    use super::super::clock::Clocks;
     use super::super::config::{SpiMode, WireBits};
     use super::*;
 
     fn plan(bits: u16, mode: SpiMode, tx: WireBits) -> TransferPlan {
-        TransferPlan {
-            bits,
-            mode,
-            clock: clock_plan(0, bits, Clocks::BOARD),
-            cs_low_before: false,
-            cs_hold: false,
-            tx: tx.truncated(bits),
-        }
+        TransferPlan::single(bits, mode, 0, Clocks::BOARD, tx)
     }
 
     /// (leading edges, trailing edges) with CS low; panics if CS and SCK
