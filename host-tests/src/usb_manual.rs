@@ -81,3 +81,27 @@ pub fn trajectory(profile: u8, pos: i32, speed: u32, acc: u32, dec: u32) -> [u8;
     r[32..36].copy_from_slice(&dec.to_le_bytes());
     r
 }
+
+/// A 0x80 report: DRV8711 registers, mode, temperature limit, currents,
+/// address, baud/parity (manual 10.2.3 offsets).
+pub fn write_driver_settings(
+    regs: [u16; 8],
+    mode: u8,
+    max_temp: u8,
+    address: u8,
+    serial: u8,
+) -> [u8; 64] {
+    let mut r = out(0x80);
+    for (i, v) in regs.iter().enumerate() {
+        r[20 + 2 * i..22 + 2 * i].copy_from_slice(&v.to_le_bytes());
+    }
+    r[37] = mode;
+    r[38] = max_temp;
+    r[39] = 61; // idle 0.5 A: Tq 61, Ai 3
+    r[40] = 3;
+    r[41] = 123; // overheat 1 A: Tq 123, Ai 3
+    r[42] = 3;
+    r[43] = address;
+    r[44] = serial;
+    r
+}

@@ -9,7 +9,7 @@ use bridge_logic::postep60::settings::DriverMode;
 use bridge_logic::postep60::Settings;
 use host_tests::usb_bench::{read, transact, write, UsbCtx, UID};
 use host_tests::usb_manual::{
-    be16, be32, le32, out, phys, trajectory, MANUAL_CONFIG, MANUAL_DEVICE,
+    be16, be32, le32, out, phys, trajectory, write_driver_settings, MANUAL_CONFIG, MANUAL_DEVICE,
 };
 use stepbridge_sim::Fault;
 use usbd_class_tester::prelude::*;
@@ -192,30 +192,6 @@ fn in_boot_mode_0x01_says_0xb0_nothing_moves_and_0x02_restarts_the_application()
         assert_eq!(cls.bridge.take_reset(), Some(ResetTarget::Application));
     })
     .expect("with_usb");
-}
-
-/// A 0x80 report: DRV8711 registers, mode, temperature limit, currents,
-/// address, baud/parity (manual 10.2.3 offsets).
-fn write_driver_settings(
-    regs: [u16; 8],
-    mode: u8,
-    max_temp: u8,
-    address: u8,
-    serial: u8,
-) -> [u8; 64] {
-    let mut r = out(0x80);
-    for (i, v) in regs.iter().enumerate() {
-        r[20 + 2 * i..22 + 2 * i].copy_from_slice(&v.to_le_bytes());
-    }
-    r[37] = mode;
-    r[38] = max_temp;
-    r[39] = 61; // idle 0.5 A: Tq 61, Ai 3
-    r[40] = 3;
-    r[41] = 123; // overheat 1 A: Tq 123, Ai 3
-    r[42] = 3;
-    r[43] = address;
-    r[44] = serial;
-    r
 }
 
 #[test]

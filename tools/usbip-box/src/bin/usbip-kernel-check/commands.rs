@@ -7,7 +7,7 @@
 
 use std::time::{Duration, Instant};
 
-use host_tests::usb_manual::{be16, be32, le32, out, phys, trajectory};
+use host_tests::usb_manual::{be16, be32, le32, out, phys, trajectory, write_driver_settings};
 
 use crate::device::Attached;
 use crate::hid::Hid;
@@ -17,30 +17,6 @@ mod stream;
 
 /// The box's unique id (`usbip_box::postep_box::UID`), as 0x01 reports it.
 use usbip_box::postep_box::UID;
-
-/// 0x80: DRV8711 registers, mode, temperature limit, currents, address,
-/// baud/parity (manual 10.2.3 offsets).
-fn write_driver_settings(
-    regs: [u16; 8],
-    mode: u8,
-    max_temp: u8,
-    address: u8,
-    serial: u8,
-) -> [u8; 64] {
-    let mut r = out(0x80);
-    for (i, v) in regs.iter().enumerate() {
-        r[20 + 2 * i..22 + 2 * i].copy_from_slice(&v.to_le_bytes());
-    }
-    r[37] = mode;
-    r[38] = max_temp;
-    r[39] = 61; // idle 0.5 A: Tq 61, Ai 3
-    r[40] = 3;
-    r[41] = 123; // overheat 1 A: Tq 123, Ai 3
-    r[42] = 3;
-    r[43] = address;
-    r[44] = serial;
-    r
-}
 
 /// The reply to `o`, checked for the IN report id; an empty report when
 /// none came (the checks on it then fail).
