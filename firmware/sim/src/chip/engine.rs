@@ -409,11 +409,17 @@ impl Powerstep01 {
             return Some(j);
         }
         let steps = self.ramp_down(d, n);
+        self.continue_leg(leg, steps, braking);
+        Some(n)
+    }
+
+    /// `leg` goes on after `steps` more steps (`braking`: the state it
+    /// goes on in).
+    fn continue_leg(&mut self, leg: Leg, steps: u128, braking: bool) {
         let rem = leg
             .remaining
             .saturating_sub(u64::try_from(steps).unwrap_or(u64::MAX));
         self.set_position_state(leg.dir, leg.target, rem, braking);
-        Some(n)
     }
 
     /// Up by ACC towards MAX_SPEED, braking starts where the distance run
@@ -444,18 +450,12 @@ impl Powerstep01 {
                 self.land(leg.dir, leg.remaining);
             } else {
                 let steps = self.ramp_up(a, j);
-                let rem = leg
-                    .remaining
-                    .saturating_sub(u64::try_from(steps).unwrap_or(u64::MAX));
-                self.set_position_state(leg.dir, leg.target, rem, true);
+                self.continue_leg(leg, steps, true);
             }
             return Some(j);
         }
         let steps = self.ramp_up(a, n);
-        let rem = leg
-            .remaining
-            .saturating_sub(u64::try_from(steps).unwrap_or(u64::MAX));
-        self.set_position_state(leg.dir, leg.target, rem, false);
+        self.continue_leg(leg, steps, false);
         Some(n)
     }
 
