@@ -408,14 +408,18 @@ fn x6_a_flag_left_between_transfers_is_cleared_before_the_stream_is_enabled() {
     clean(&r.hw);
 }
 
+/// Each of the four DMA streams with a plan that runs on it: the SPI
+/// engine's (64 bits: DMA1 S3 transmit, S4 receive), then the timer
+/// engine's (33 bits: DMA2 S2 samples, S6 the MOSI table).
+fn each_stream() -> [(TransferPlan, u8, u8); 4] {
+    let spi = plan(64, SpiMode::MODE0, 5);
+    let timer = plan(33, SpiMode::MODE3, 5);
+    [(spi, 1, 3), (spi, 1, 4), (timer, 2, 2), (timer, 2, 6)]
+}
+
 #[test]
 fn x9_a_transfer_error_on_any_stream_ends_the_transfer_as_a_dma_error_and_the_next_works() {
-    for (p, ctl, stream) in [
-        (plan(64, SpiMode::MODE0, 5), 1u8, 3u8),
-        (plan(64, SpiMode::MODE0, 5), 1, 4),
-        (plan(33, SpiMode::MODE3, 5), 2, 2),
-        (plan(33, SpiMode::MODE3, 5), 2, 6),
-    ] {
+    for (p, ctl, stream) in each_stream() {
         let mut r = rig();
         r.hw.model_mut().fail_next(ctl, stream, Flags::TEIF);
         assert_eq!(
@@ -435,12 +439,7 @@ fn fifo_errors_follow_the_one_rule_counted_unless_the_peripheral_waits_for_the_d
     // master that clocks only what it has; every other stream's FEIF is an
     // error (the receive streams fell behind their peripheral, the MOSI
     // table's timer does not wait).
-    for (p, ctl, stream, counts) in [
-        (plan(64, SpiMode::MODE0, 5), 1u8, 3u8, true),
-        (plan(64, SpiMode::MODE0, 5), 1, 4, false),
-        (plan(33, SpiMode::MODE3, 5), 2, 2, true),
-        (plan(33, SpiMode::MODE3, 5), 2, 6, true),
-    ] {
+    for ((p, ctl, stream), counts) in each_stream().into_iter().zip([true, false, true, true]) {
         let mut r = rig();
         r.hw.model_mut().fail_next(ctl, stream, Flags::FEIF);
         if counts {
