@@ -116,8 +116,8 @@ mod app {
     use bridge_logic::transport::modbus::{RtuServer, Timing};
     use bridge_logic::transport::usb::REPORT_LEN;
     use defmt::{debug, error, info, warn};
-    use firmware::drivers::chain_spi::ChainBuffers;
     use firmware::drivers::chain_spi::ChainSpiError;
+    use firmware::drivers::chain_spi::{ChainBuffers, ChainPeripherals};
     use firmware::drivers::clock::{self, Mono};
     use firmware::drivers::i2c_slave::LockedTarget;
     use firmware::drivers::ioext_spi::{IoExtBuffers, IoExtPeripherals, Started};
@@ -234,9 +234,19 @@ mod app {
             dp.GPIOB.split(&mut rcc),
             dp.GPIOC.split(&mut rcc),
         );
-        let chain_pins = (pins.chain_sck, pins.chain_miso, pins.chain_mosi);
-        let chain = (dp.SPI1, dp.TIM7, chain_pins, pins.chain_cs, pins.chain_stby);
-        let (bus, stby) = start_chain(chain, cx.local.chain_buffers, &mut rcc, boot.sysclk);
+        let chain = ChainPeripherals {
+            spi: dp.SPI1,
+            pins: (pins.chain_sck, pins.chain_miso, pins.chain_mosi),
+            cs: pins.chain_cs,
+            tim: dp.TIM7,
+        };
+        let (bus, stby) = start_chain(
+            chain,
+            pins.chain_stby,
+            cx.local.chain_buffers,
+            &mut rcc,
+            boot.sysclk,
+        );
 
         let mut store = Store::new(platform::settings_flash(dp.FLASH));
         let uid = platform::unique_id();
@@ -356,18 +366,13 @@ mod app {
     /// Start-up step 2: the chain's driver (SPI1, TIM7, DMA2), then the
     /// chips out of reset.
     fn start_chain(
-        (spi, tim, sck_miso_mosi, cs, mut stby): (
-            pins::ChainSpi,
-            pins::ChainGapTimer,
-            (pins::ChainSck, pins::ChainMiso, pins::ChainMosi),
-            pins::ChainCs,
-            pins::ChainStby,
-        ),
+        chain: ChainPeripherals,
+        mut stby: pins::ChainStby,
         buffers: &'static mut ChainBuffers,
         rcc: &mut stm32f4xx_hal::rcc::Rcc,
         sysclk: u32,
     ) -> (ChainLink, pins::ChainStby) {
-        let bus = platform::chain_driver(spi, sck_miso_mosi, cs, tim, buffers, rcc);
+        let bus = platform::chain_driver(chain, buffers, rcc);
         release_chain(&mut stby, sysclk);
         (bus, stby)
     }

@@ -220,14 +220,21 @@ impl ChainMemory for ChainRegs {
     }
 }
 
-/// Take SPI1, TIM7 and the chain's pins as `pins::configure` left them (CS
-/// high) and return their one driver. Clocks and resets SPI1 and TIM7,
-/// clocks DMA2 (never reset: the I/O extension uses it too).
+/// What the chain's driver owns: SPI1, its pins (SCK, MISO, MOSI as
+/// `pins::configure` left them, CS high) and TIM7, the gap timer.
+#[derive(Debug)]
+pub struct ChainPeripherals {
+    pub spi: ChainSpiPeriph,
+    pub pins: (ChainSck, ChainMiso, ChainMosi),
+    pub cs: ChainCs,
+    pub tim: ChainGapTimer,
+}
+
+/// Take the chain's peripherals and return their one driver. Clocks and
+/// resets SPI1 and TIM7, clocks DMA2 (never reset: the I/O extension uses
+/// it too).
 pub fn chain_spi(
-    spi: ChainSpiPeriph,
-    pins: (ChainSck, ChainMiso, ChainMosi),
-    cs_pin: ChainCs,
-    tim: ChainGapTimer,
+    peripherals: ChainPeripherals,
     bufs: &'static mut ChainBuffers,
     rcc: &mut Rcc,
 ) -> ChainSpi {
@@ -243,7 +250,7 @@ pub fn chain_spi(
     };
     // The pins keep the modes `pins::configure` gave them; from here on
     // SPI1, TIM7 and CS are driven through their registers (module docs).
-    let _ = (spi, pins, cs_pin, tim);
+    let _ = peripherals;
     core_spi::ChainSpi::new(ChainRegs { bufs }, clocks)
 }
 

@@ -83,13 +83,10 @@ use stepbridge_sim::{ConsoleLine, HomeCam, Lines, ShiftChain, SimChain};
 use stm32f4xx_hal::pac;
 use stm32f4xx_hal::rcc::{Config, Enable, Rcc, RccExt, Reset};
 
-use crate::drivers::chain_spi::{ChainBuffers, ChainCell, ChainSpiError};
+use crate::drivers::chain_spi::{ChainBuffers, ChainCell, ChainPeripherals, ChainSpiError};
 use crate::drivers::ioext_spi::{IoExtBuffers, IoExtError, IoExtPeripherals, Started};
 use crate::drivers::usb::Link;
-use crate::pins::{
-    self, ChainCs, ChainGapTimer, ChainMiso, ChainMosi, ChainSck, ChainSpi, HostI2c, HostI2cScl,
-    HostI2cSda, SenseAdc, SupplySense,
-};
+use crate::pins::{self, HostI2c, HostI2cScl, HostI2cSda, SenseAdc, SupplySense};
 use bridge_logic::transport::usb::REPORT_LEN;
 use usb_device::device::UsbDeviceState;
 
@@ -392,10 +389,7 @@ pub fn with_chain<R>(f: impl FnOnce(&mut ChainDriver) -> R) -> Option<R> {
 /// reaches it ([`with_chain`]); returns the bridge's handle. Start the
 /// monotonic first.
 pub fn chain_driver(
-    _spi: ChainSpi,
-    _pins: (ChainSck, ChainMiso, ChainMosi),
-    _cs: ChainCs,
-    _tim: ChainGapTimer,
+    _peripherals: ChainPeripherals,
     bufs: &'static mut ChainBuffers,
     rcc: &mut Rcc,
 ) -> ChainLink {

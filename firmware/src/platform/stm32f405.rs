@@ -14,10 +14,10 @@ use stm32f4xx_hal::time::Hertz;
 use stm32f4xx_hal::timer::{CounterHz, Event, Flag, TimerExt};
 use stm32f4xx_hal::{ClearFlags, Listen};
 
-use crate::drivers::chain_spi::{self, ChainBuffers, ChainCell};
+use crate::drivers::chain_spi::{self, ChainBuffers, ChainCell, ChainPeripherals};
 use crate::drivers::flash::StoreFlash;
 use crate::drivers::ioext_spi::{self, IoExtBuffers, IoExtPeripherals, IoExtPort};
-use crate::pins::{self, ChainCs, ChainGapTimer, ChainMiso, ChainMosi, ChainSck, ChainSpi};
+use crate::pins;
 
 pub use crate::drivers::analog::Analog;
 pub use crate::drivers::i2c_slave::I2cSlaveDriver;
@@ -135,14 +135,11 @@ static CHAIN: ChainCell<ChainDriver> = ChainCell::new();
 /// put their one driver where the control tick and the chain's interrupts
 /// reach it ([`with_chain`]) and return the bridge's handle on it.
 pub fn chain_driver(
-    spi: ChainSpi,
-    pins: (ChainSck, ChainMiso, ChainMosi),
-    cs: ChainCs,
-    tim: ChainGapTimer,
+    peripherals: ChainPeripherals,
     bufs: &'static mut ChainBuffers,
     rcc: &mut Rcc,
 ) -> ChainLink {
-    CHAIN.install(chain_spi::chain_spi(spi, pins, cs, tim, bufs, rcc))
+    CHAIN.install(chain_spi::chain_spi(peripherals, bufs, rcc))
 }
 
 /// Run `f` on the chain's one driver, interrupts masked (`None` before

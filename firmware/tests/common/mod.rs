@@ -144,19 +144,18 @@ pub fn long_plan(n: usize) -> bridge_logic::powerstep::Plan {
 /// its `'static` buffers, as the app takes it (the app then puts it in
 /// `platform`'s cell; the tests use it directly).
 pub fn chain(mut t: Target) -> firmware::drivers::chain_spi::ChainSpi {
-    use firmware::drivers::chain_spi::{chain_spi, ChainBuffers};
+    use firmware::drivers::chain_spi::{chain_spi, ChainBuffers, ChainPeripherals};
     let p = t.pins;
     let Some(bufs) = cortex_m::singleton!(: ChainBuffers = ChainBuffers::new()) else {
         defmt::panic!("buffers taken twice");
     };
-    chain_spi(
-        t.spi1,
-        (p.chain_sck, p.chain_miso, p.chain_mosi),
-        p.chain_cs,
-        t.tim7,
-        bufs,
-        &mut t.rcc,
-    )
+    let peripherals = ChainPeripherals {
+        spi: t.spi1,
+        pins: (p.chain_sck, p.chain_miso, p.chain_mosi),
+        cs: p.chain_cs,
+        tim: t.tim7,
+    };
+    chain_spi(peripherals, bufs, &mut t.rcc)
 }
 
 /// The I/O extension's board driver on the target's SPI2, TIM1, DMA1, DMA2
