@@ -34,7 +34,7 @@ import time
 
 import pymodbus
 
-from modbus_e2e import Failure, check, connect, i32, read, write_many
+from modbus_e2e import Failure, check, connect, failed, i32, read, write_many
 
 OPTIONS, CONFIG, TRANSFERS, ENGINE, RECEIVE = 0x0200, 0x0202, 0x0204, 0x020A, 0x0220
 MAP_AXIS0_BIN1 = 0x0240
@@ -136,11 +136,8 @@ def main():
     t0 = time.monotonic()
     try:
         scenario(client, console, args.timeout)
-    except Failure as e:
-        print(f"FAIL: {e}", file=sys.stderr)
-        return 1
-    except Exception as e:  # pymodbus raises ModbusIOException on timeouts
-        print(f"FAIL: {type(e).__name__}: {e}", file=sys.stderr)
+    except Exception as e:
+        failed(e)
         return 1
     finally:
         client.close()

@@ -121,6 +121,15 @@ def connect(host, port, timeout=2.0, connect_timeout=20.0):
     return client
 
 
+def failed(e):
+    """Print why a scenario stopped: a check (Failure) or pymodbus, which
+    raises ModbusIOException on timeouts."""
+    if isinstance(e, Failure):
+        print(f"FAIL: {e}", file=sys.stderr)
+    else:
+        print(f"FAIL: {type(e).__name__}: {e}", file=sys.stderr)
+
+
 def i32(words):
     v = (words[0] << 16) | words[1]
     return v - (1 << 32) if v & 0x8000_0000 else v
@@ -294,11 +303,8 @@ def main():
             extensions(client, args.move_timeout)
             if args.save:
                 save(client, args.move_timeout)
-    except Failure as e:
-        print(f"FAIL: {e}", file=sys.stderr)
-        return 1
-    except Exception as e:  # pymodbus raises ModbusIOException on timeouts
-        print(f"FAIL: {type(e).__name__}: {e}", file=sys.stderr)
+    except Exception as e:
+        failed(e)
         return 1
     finally:
         client.close()

@@ -26,7 +26,7 @@ import logging
 import sys
 import time
 
-from modbus_e2e import Failure, connect, i32, read, words
+from modbus_e2e import Failure, connect, failed, i32, read, words
 from modbus_e2e import write_many as write
 
 POSITION = 0x0040
@@ -100,11 +100,8 @@ def main():
         return 2
     try:
         worst = run(client, args)
-    except Failure as e:
-        print(f"FAIL: {e}", file=sys.stderr)
-        return 2
-    except Exception as e:  # pymodbus raises ModbusIOException on timeouts
-        print(f"FAIL: {type(e).__name__}: {e}", file=sys.stderr)
+    except Exception as e:
+        failed(e)
         return 2
     finally:
         client.close()
