@@ -200,6 +200,14 @@ impl Rig {
     fn control_in(&mut self, setup: [u8; 8]) -> (i32, Vec<u8>) {
         let len = u32::from(u16::from_le_bytes([setup[6], setup[7]]));
         let s = self.submit(0, DIR_IN, len, setup, &[]);
+        let (status, actual_length, data) = self.submit_reply(s);
+        assert_eq!(actual_length as usize, data.len());
+        (status, data)
+    }
+
+    /// The next reply, which must be URB `s`'s RET_SUBMIT: (status,
+    /// actual_length, data).
+    fn submit_reply(&mut self, s: u32) -> (i32, u32, Vec<u8>) {
         match self.reply() {
             Reply::Submit {
                 seqnum,
@@ -208,8 +216,7 @@ impl Rig {
                 data,
             } => {
                 assert_eq!(seqnum, s);
-                assert_eq!(actual_length as usize, data.len());
-                (status, data)
+                (status, actual_length, data)
             }
             r => panic!("{r:?}"),
         }
@@ -218,19 +225,9 @@ impl Rig {
     /// A control OUT transfer: (status, actual_length).
     fn control_out(&mut self, setup: [u8; 8], data: &[u8]) -> (i32, u32) {
         let s = self.submit(0, DIR_OUT, data.len() as u32, setup, data);
-        match self.reply() {
-            Reply::Submit {
-                seqnum,
-                status,
-                actual_length,
-                data,
-            } => {
-                assert_eq!(seqnum, s);
-                assert!(data.is_empty());
-                (status, actual_length)
-            }
-            r => panic!("{r:?}"),
-        }
+        let (status, actual_length, data) = self.submit_reply(s);
+        assert!(data.is_empty());
+        (status, actual_length)
     }
 
     fn get_descriptor(&mut self, kind: u8, index: u8, len: u16) -> Vec<u8> {
