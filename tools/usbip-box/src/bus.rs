@@ -771,19 +771,7 @@ mod tests {
     }
 
     fn urb(seqnum: u32, ep: u32, direction: u32, len: u32, setup: [u8; 8], data: &[u8]) -> Submit {
-        Submit {
-            seqnum,
-            devid: 0x0001_0002,
-            direction,
-            ep,
-            transfer_flags: 0,
-            transfer_buffer_length: len,
-            start_frame: 0,
-            number_of_packets: 0,
-            interval: 0,
-            setup,
-            data: data.to_vec(),
-        }
+        Submit::transfer(seqnum, 0x0001_0002, (ep, direction), len, setup, data)
     }
 
     fn status_of(r: &Reply) -> (u32, i32) {

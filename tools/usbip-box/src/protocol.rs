@@ -139,6 +139,31 @@ pub struct Submit {
 }
 
 impl Submit {
+    /// A plain (not isochronous) transfer as a host submits it: no flags,
+    /// start frame or interval; `len` is `transfer_buffer_length`.
+    pub fn transfer(
+        seqnum: u32,
+        devid: u32,
+        (ep, direction): (u32, u32),
+        len: u32,
+        setup: [u8; 8],
+        data: &[u8],
+    ) -> Submit {
+        Submit {
+            seqnum,
+            devid,
+            direction,
+            ep,
+            transfer_flags: 0,
+            transfer_buffer_length: len,
+            start_frame: 0,
+            number_of_packets: 0,
+            interval: 0,
+            setup,
+            data: data.to_vec(),
+        }
+    }
+
     /// The transfer is isochronous (it announced packet descriptors).
     pub fn is_iso(&self) -> bool {
         self.number_of_packets != 0 && self.number_of_packets != NOT_ISO
@@ -624,18 +649,10 @@ mod tests {
     }
 
     fn get_descriptor(seqnum: u32) -> Submit {
+        let setup = [0x80, 0x06, 0x00, 0x01, 0x00, 0x00, 0x40, 0x00];
         Submit {
-            seqnum,
-            devid: 0x0001_0002,
-            direction: DIR_IN,
-            ep: 0,
             transfer_flags: 0x200,
-            transfer_buffer_length: 64,
-            start_frame: 0,
-            number_of_packets: 0,
-            interval: 0,
-            setup: [0x80, 0x06, 0x00, 0x01, 0x00, 0x00, 0x40, 0x00],
-            data: vec![],
+            ..Submit::transfer(seqnum, 0x0001_0002, (0, DIR_IN), 64, setup, &[])
         }
     }
 

@@ -135,19 +135,14 @@ impl Rig {
         if dir == DIR_IN {
             self.ins.push(seqnum);
         }
-        let bytes = encode_submit(&Submit {
+        let bytes = encode_submit(&Submit::transfer(
             seqnum,
-            devid: DEVID,
-            direction: dir,
-            ep,
-            transfer_flags: 0,
-            transfer_buffer_length: len,
-            start_frame: 0,
-            number_of_packets: 0,
-            interval: 0,
+            DEVID,
+            (ep, dir),
+            len,
             setup,
-            data: data.to_vec(),
-        });
+            data,
+        ));
         (seqnum, bytes)
     }
 
