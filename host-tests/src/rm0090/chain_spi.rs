@@ -50,6 +50,8 @@ use drivers_core::chain_spi::{
 };
 use drivers_core::dma::DmaReg;
 use drivers_core::spi::SpiReg;
+
+use super::spi::SpiPort;
 use stepbridge_sim::SimChain;
 
 /// APB2 (SPI1) and TIM7's clock on the board, and the CPU clock.
@@ -91,15 +93,7 @@ pub struct Window {
 /// SPI1, DMA2 streams 0/3, TIM7, CS and the chain (see the module docs).
 pub struct ChainModel {
     now: u64,
-    spi_cr1: u32,
-    spi_cr2: u32,
-    rxne: bool,
-    ovr: bool,
-    modf: bool,
-    /// DR read since the last SR read (first half of the OVR clear).
-    dr_read: bool,
-    tx_buf: Option<u8>,
-    rx_buf: u8,
+    spi: SpiPort,
     /// The byte on the wire: what MISO brings, when it ends (ps).
     shift: Option<(u8, u64)>,
     streams: [Stream; 2],
@@ -137,8 +131,8 @@ impl std::fmt::Debug for ChainModel {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("ChainModel")
             .field("now_ns", &(self.now / 1000))
-            .field("spi_cr1", &format_args!("{:#06x}", self.spi_cr1))
-            .field("spi_cr2", &format_args!("{:#06x}", self.spi_cr2))
+            .field("spi_cr1", &format_args!("{:#06x}", self.spi.cr1))
+            .field("spi_cr2", &format_args!("{:#06x}", self.spi.cr2))
             .field("lisr", &format_args!("{:#010x}", self.lisr))
             .field("cs_high", &self.cs_high)
             .field("violations", &self.violations)
@@ -159,14 +153,7 @@ impl ChainModel {
     pub fn new(chain: SimChain) -> ChainModel {
         ChainModel {
             now: 0,
-            spi_cr1: 0,
-            spi_cr2: 0,
-            rxne: false,
-            ovr: false,
-            modf: false,
-            dr_read: false,
-            tx_buf: None,
-            rx_buf: 0,
+            spi: SpiPort::default(),
             shift: None,
             streams: [Stream {
                 fcr: DMA_FCR_RESET,
@@ -208,11 +195,11 @@ impl ChainModel {
     }
 
     pub fn spi_cr1(&self) -> u32 {
-        self.spi_cr1
+        self.spi.cr1
     }
 
     pub fn spi_cr2(&self) -> u32 {
-        self.spi_cr2
+        self.spi.cr2
     }
 
     pub fn lisr(&self) -> u32 {
@@ -232,7 +219,7 @@ impl ChainModel {
     }
 
     pub fn ovr(&self) -> bool {
-        self.ovr
+        self.spi.ovr
     }
 
     /// Raise `flags` (LISR bits) on `stream`'s next item and stop it.
@@ -242,7 +229,7 @@ impl ChainModel {
 
     /// SCK in Hz as configured.
     pub fn sck_hz(&self) -> u64 {
-        PCLK2_HZ >> (((self.spi_cr1 & SPI_CR1_BR_MASK) >> SPI_CR1_BR_SHIFT) + 1)
+        PCLK2_HZ >> (((self.spi.cr1 & SPI_CR1_BR_MASK) >> SPI_CR1_BR_SHIFT) + 1)
     }
 
     fn byte_ps(&self) -> u64 {
@@ -308,14 +295,14 @@ impl ChainModel {
     // --------------------------------------------------------- SPI --
 
     fn dr_write(&mut self, byte: u8) {
-        if self.spi_cr1 & SPI_CR1_SPE == 0 {
+        if self.spi.cr1 & SPI_CR1_SPE == 0 {
             self.violate("S1: DR written with SPE = 0");
             return;
         }
-        if self.tx_buf.is_some() {
+        if self.spi.tx_buf.is_some() {
             self.violate("S3: DR written while TXE = 0: a byte lost");
         }
-        self.tx_buf = Some(byte);
+        self.spi.tx_buf = Some(byte);
         if self.shift.is_none() {
             self.start_shift();
         }
@@ -323,14 +310,14 @@ impl ChainModel {
 
     /// S1, S2, S11: the next byte goes on the wire.
     fn start_shift(&mut self) {
-        let Some(byte) = self.tx_buf.take() else {
+        let Some(byte) = self.spi.tx_buf.take() else {
             return;
         };
-        let cr1 = self.spi_cr1;
+        let cr1 = self.spi.cr1;
         if cr1 & (SPI_CR1_SSM | SPI_CR1_SSI) != (SPI_CR1_SSM | SPI_CR1_SSI)
             && cr1 & SPI_CR1_MSTR != 0
         {
-            self.modf = true;
+            self.spi.modf = true;
         }
         let mode = SPI_CR1_CPOL | SPI_CR1_CPHA | SPI_CR1_MSTR;
         if cr1 & mode != mode || cr1 & (SPI_CR1_LSBFIRST | SPI_CR1_DFF) != 0 {
@@ -376,28 +363,20 @@ impl ChainModel {
         let Some((miso, _)) = self.shift.take() else {
             return;
         };
-        if self.rxne {
-            self.ovr = true;
+        if self.spi.rxne {
+            self.spi.ovr = true;
         } else {
-            self.rx_buf = miso;
-            self.rxne = true;
+            self.spi.rx_buf = miso;
+            self.spi.rxne = true;
         }
-        if self.tx_buf.is_some() {
+        if self.spi.tx_buf.is_some() {
             self.start_shift();
         }
     }
 
     fn spi_sr(&mut self) -> u32 {
-        let v = (u32::from(self.rxne) * SPI_SR_RXNE)
-            | (u32::from(self.tx_buf.is_none()) * SPI_SR_TXE)
-            | (u32::from(self.modf) * SPI_SR_MODF)
-            | (u32::from(self.ovr) * SPI_SR_OVR)
-            | (u32::from(self.shift.is_some() || self.tx_buf.is_some()) * SPI_SR_BSY);
-        if self.dr_read {
-            self.ovr = false;
-            self.dr_read = false;
-        }
-        v
+        let busy = self.shift.is_some() || self.spi.tx_buf.is_some();
+        self.spi.read_sr(busy)
     }
 
     // --------------------------------------------------------- DMA --
@@ -409,15 +388,15 @@ impl ChainModel {
             // Receive: RXNE with RXDMAEN.
             let rx = self.streams[0];
             if rx.cr & DMA_CR_EN != 0
-                && self.spi_cr2 & SPI_CR2_RXDMAEN != 0
-                && self.rxne
+                && self.spi.cr2 & SPI_CR2_RXDMAEN != 0
+                && self.spi.rxne
                 && rx.ndtr > 0
             {
                 if self.dma_fails(RX_STREAM) {
                     continue;
                 }
-                let byte = self.rx_buf;
-                self.rxne = false;
+                let byte = self.spi.rx_buf;
+                self.spi.rxne = false;
                 let addr = rx.m0ar.wrapping_add(rx.moved);
                 self.mem_write(addr, byte);
                 self.item_done(0, TCIF0);
@@ -426,8 +405,8 @@ impl ChainModel {
             // Transmit: TXE with TXDMAEN.
             let tx = self.streams[1];
             if tx.cr & DMA_CR_EN != 0
-                && self.spi_cr2 & SPI_CR2_TXDMAEN != 0
-                && self.tx_buf.is_none()
+                && self.spi.cr2 & SPI_CR2_TXDMAEN != 0
+                && self.spi.tx_buf.is_none()
                 && tx.ndtr > 0
             {
                 if self.dma_fails(TX_STREAM) {
@@ -583,7 +562,7 @@ impl ChainModel {
         }
         if high {
             // S5: the last byte must be off the wire.
-            if self.shift.is_some() || self.tx_buf.is_some() {
+            if self.shift.is_some() || self.spi.tx_buf.is_some() {
                 self.violate("S5: CS raised while SPI1 is busy: the window's last byte is cut");
             }
             if self.snapshot.take().is_some() && !self.window_tx.is_empty() {
@@ -634,14 +613,10 @@ impl super::RegisterFile<ChainReg> for ChainModel {
 
     fn read_reg(&mut self, reg: ChainReg) -> u32 {
         match reg {
-            ChainReg::Spi(SpiReg::Cr1) => self.spi_cr1,
-            ChainReg::Spi(SpiReg::Cr2) => self.spi_cr2,
+            ChainReg::Spi(SpiReg::Cr1) => self.spi.cr1,
+            ChainReg::Spi(SpiReg::Cr2) => self.spi.cr2,
             ChainReg::Spi(SpiReg::Sr) => self.spi_sr(),
-            ChainReg::Spi(SpiReg::Dr) => {
-                self.rxne = false;
-                self.dr_read = true;
-                u32::from(self.rx_buf)
-            }
+            ChainReg::Spi(SpiReg::Dr) => self.spi.read_dr(),
             ChainReg::Dma(DmaReg::Lisr) => self.lisr,
             // Streams 4–7 are not the chain's: their HISR reads 0 here.
             ChainReg::Dma(DmaReg::Hisr | DmaReg::Lifcr | DmaReg::Hifcr) => 0,
@@ -662,8 +637,8 @@ impl super::RegisterFile<ChainReg> for ChainModel {
 
     fn write_reg(&mut self, reg: ChainReg, value: u32) {
         match reg {
-            ChainReg::Spi(SpiReg::Cr1) => self.spi_cr1 = value & 0xFFFF,
-            ChainReg::Spi(SpiReg::Cr2) => self.spi_cr2 = value & 0xFF,
+            ChainReg::Spi(SpiReg::Cr1) => self.spi.cr1 = value & 0xFFFF,
+            ChainReg::Spi(SpiReg::Cr2) => self.spi.cr2 = value & 0xFF,
             ChainReg::Spi(SpiReg::Sr) => {}
             ChainReg::Spi(SpiReg::Dr) => self.dr_write(value as u8),
             ChainReg::Dma(DmaReg::Lisr | DmaReg::Hisr) => self.violate("LISR/HISR are read-only"),

@@ -56,6 +56,8 @@ use drivers_core::ioext_spi::{GpioReg, IoExtBuffers, IoExtHw, IoReg, Pins, Targe
 use drivers_core::spi::bits::*;
 use drivers_core::spi::SpiReg;
 
+use super::spi::SpiPort;
+
 mod dma;
 mod gpio;
 mod spi;
@@ -319,14 +321,7 @@ struct Frame {
 pub struct IoModel {
     now: u64,
     // SPI2
-    spi_cr1: u32,
-    spi_cr2: u32,
-    rxne: bool,
-    rx_buf: u8,
-    ovr: bool,
-    modf: bool,
-    dr_read: bool,
-    tx_buf: Option<u8>,
+    spi: SpiPort,
     frame: Option<Frame>,
     spi_sck: bool,
     spi_mosi: bool,
@@ -371,8 +366,8 @@ impl std::fmt::Debug for IoModel {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("IoModel")
             .field("now", &self.now)
-            .field("spi_cr1", &format_args!("{:#06x}", self.spi_cr1))
-            .field("spi_cr2", &format_args!("{:#06x}", self.spi_cr2))
+            .field("spi_cr1", &format_args!("{:#06x}", self.spi.cr1))
+            .field("spi_cr2", &format_args!("{:#06x}", self.spi.cr2))
             .field("tim_cr1", &format_args!("{:#06x}", self.tim_cr1))
             .field("cs", &self.cs)
             .field("sck", &self.sck)
@@ -394,14 +389,7 @@ impl IoModel {
     pub fn new(chips: ShiftRegs) -> IoModel {
         let mut m = IoModel {
             now: 0,
-            spi_cr1: 0,
-            spi_cr2: 0,
-            rxne: false,
-            rx_buf: 0,
-            ovr: false,
-            modf: false,
-            dr_read: false,
-            tx_buf: None,
+            spi: SpiPort::default(),
             frame: None,
             spi_sck: false,
             spi_mosi: false,
@@ -471,11 +459,11 @@ impl IoModel {
     }
 
     pub fn spi_cr1(&self) -> u32 {
-        self.spi_cr1
+        self.spi.cr1
     }
 
     pub fn spi_cr2(&self) -> u32 {
-        self.spi_cr2
+        self.spi.cr2
     }
 
     pub fn tim_cr1(&self) -> u32 {
@@ -628,14 +616,10 @@ impl super::RegisterFile<IoReg> for IoModel {
     fn read_reg(&mut self, reg: IoReg) -> u32 {
         match reg {
             IoReg::Spi(r) => match r {
-                SpiReg::Cr1 => self.spi_cr1,
-                SpiReg::Cr2 => self.spi_cr2,
+                SpiReg::Cr1 => self.spi.cr1,
+                SpiReg::Cr2 => self.spi.cr2,
                 SpiReg::Sr => self.spi_sr(),
-                SpiReg::Dr => {
-                    self.rxne = false;
-                    self.dr_read = true;
-                    u32::from(self.rx_buf)
-                }
+                SpiReg::Dr => self.spi.read_dr(),
             },
             IoReg::Dma1(r) => self.dma_read(1, r),
             IoReg::Dma2(r) => self.dma_read(2, r),
@@ -656,17 +640,17 @@ impl super::RegisterFile<IoReg> for IoModel {
                 SpiReg::Cr1 => self.spi_cr1_write(value),
                 SpiReg::Cr2 => {
                     let value = value & 0xFF;
-                    if value & SPI_CR2_TXDMAEN != 0 && self.spi_cr2 & SPI_CR2_TXDMAEN == 0 {
+                    if value & SPI_CR2_TXDMAEN != 0 && self.spi.cr2 & SPI_CR2_TXDMAEN == 0 {
                         let tx = self.dma[0].streams[4].cr;
                         if tx & DMA_CR_EN == 0 {
                             self.violate("X4: TXDMAEN set with the SPI2_TX stream disabled");
                         }
                         let rx = self.dma[0].streams[3].cr;
-                        if rx & DMA_CR_EN == 0 || self.spi_cr2 & SPI_CR2_RXDMAEN == 0 {
+                        if rx & DMA_CR_EN == 0 || self.spi.cr2 & SPI_CR2_RXDMAEN == 0 {
                             self.violate("X4: TXDMAEN set before RXDMAEN and the SPI2_RX stream");
                         }
                     }
-                    self.spi_cr2 = value;
+                    self.spi.cr2 = value;
                     self.spi_requests();
                 }
                 SpiReg::Sr => {}

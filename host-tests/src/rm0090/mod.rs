@@ -43,6 +43,7 @@ pub mod i2c;
 pub mod i2c_rig;
 pub mod ioext;
 pub mod iwdg;
+pub mod spi;
 pub mod usart;
 
 /// A shared handle on a model: the driver under test holds one, the test

@@ -5,8 +5,9 @@ use super::*;
 impl IoModel {
     /// X4: SPI2's level requests, scheduled on their streams.
     pub(super) fn spi_requests(&mut self) {
-        let rx = self.rxne && self.spi_cr2 & SPI_CR2_RXDMAEN != 0;
-        let tx = self.tx_buf.is_none() && self.spi_cr2 & SPI_CR2_TXDMAEN != 0 && self.spi_enabled();
+        let rx = self.spi.rxne && self.spi.cr2 & SPI_CR2_RXDMAEN != 0;
+        let tx =
+            self.spi.tx_buf.is_none() && self.spi.cr2 & SPI_CR2_TXDMAEN != 0 && self.spi_enabled();
         for (active, s) in [(rx, 3usize), (tx, 4)] {
             let st = &mut self.dma[0].streams[s];
             let ready = st.cr & DMA_CR_EN != 0
@@ -45,8 +46,8 @@ impl IoModel {
         }
         // SPI2's requests are levels: still there?
         let still = match req {
-            Request::SpiRx => self.rxne && self.spi_cr2 & SPI_CR2_RXDMAEN != 0,
-            Request::SpiTx => self.tx_buf.is_none() && self.spi_cr2 & SPI_CR2_TXDMAEN != 0,
+            Request::SpiRx => self.spi.rxne && self.spi.cr2 & SPI_CR2_RXDMAEN != 0,
+            Request::SpiTx => self.spi.tx_buf.is_none() && self.spi.cr2 & SPI_CR2_TXDMAEN != 0,
             Request::TimCh2 | Request::TimCh3 => true,
         };
         if !still {
@@ -102,8 +103,8 @@ impl IoModel {
     pub(super) fn periph_read(&mut self, ctl: u8, par: u32, psize: u32) -> Option<u32> {
         match par {
             SPI2_DR if psize == 0 => {
-                self.rxne = false;
-                Some(u32::from(self.rx_buf))
+                self.spi.rxne = false;
+                Some(u32::from(self.spi.rx_buf))
             }
             GPIOB_IDR if ctl == 2 && psize >= 1 => Some(self.idr()),
             _ => {
@@ -292,9 +293,9 @@ impl IoModel {
                 st.cr
             ));
         }
-        if req == Request::SpiTx && self.spi_cr2 & SPI_CR2_TXDMAEN != 0 {
+        if req == Request::SpiTx && self.spi.cr2 & SPI_CR2_TXDMAEN != 0 {
             self.violate("X4: SPI2_TX stream enabled after TXDMAEN");
-            if self.tx_buf.is_none() {
+            if self.spi.tx_buf.is_none() {
                 // The request was already active: FEIF, as in direct mode.
                 self.dma[c].raise(s, Flags::FEIF);
             }

@@ -11,53 +11,45 @@ impl IoModel {
     // ------------------------------------------------------------- SPI2 --
 
     pub(super) fn spi_enabled(&self) -> bool {
-        self.spi_cr1 & SPI_CR1_SPE != 0
+        self.spi.cr1 & SPI_CR1_SPE != 0
     }
 
     pub(super) fn cpol(&self) -> bool {
-        self.spi_cr1 & SPI_CR1_CPOL != 0
+        self.spi.cr1 & SPI_CR1_CPOL != 0
     }
 
     pub(super) fn spi_cr1_write(&mut self, value: u32) {
         let value = value & 0xFFFF;
         let config = !SPI_CR1_SPE & 0xFFFF;
-        if self.spi_enabled() && (value ^ self.spi_cr1) & config != 0 {
+        if self.spi_enabled() && (value ^ self.spi.cr1) & config != 0 {
             self.violate(format!(
                 "X2: SPI2 CR1 {:#06x} -> {value:#06x} while SPE = 1",
-                self.spi_cr1
+                self.spi.cr1
             ));
         }
         if self.spi_enabled() && value & SPI_CR1_SPE == 0 && self.busy() {
             self.violate("X5: SPE cleared while SPI2 is busy: a frame cut");
             self.frame = None;
-            self.tx_buf = None;
+            self.spi.tx_buf = None;
         }
-        self.spi_cr1 = value;
+        self.spi.cr1 = value;
         if !self.spi_enabled() {
             self.frame = None;
         } else if self.frame.is_none() {
             self.spi_sck = self.cpol();
-            if self.tx_buf.is_some() {
+            if self.spi.tx_buf.is_some() {
                 self.start_frame();
             }
         }
     }
 
     pub(super) fn busy(&self) -> bool {
-        self.frame.is_some() || self.tx_buf.is_some()
+        self.frame.is_some() || self.spi.tx_buf.is_some()
     }
 
     pub(super) fn spi_sr(&mut self) -> u32 {
-        let v = (u32::from(self.rxne) * SPI_SR_RXNE)
-            | (u32::from(self.tx_buf.is_none()) * SPI_SR_TXE)
-            | (u32::from(self.modf) * SPI_SR_MODF)
-            | (u32::from(self.ovr) * SPI_SR_OVR)
-            | (u32::from(self.busy()) * SPI_SR_BSY);
-        if self.dr_read {
-            self.ovr = false;
-            self.dr_read = false;
-        }
-        v
+        let busy = self.busy();
+        self.spi.read_sr(busy)
     }
 
     pub(super) fn dr_write(&mut self, byte: u8) {
@@ -65,10 +57,10 @@ impl IoModel {
             self.violate("X1: SPI2 DR written with SPE = 0");
             return;
         }
-        if self.tx_buf.is_some() {
+        if self.spi.tx_buf.is_some() {
             self.violate("X3: SPI2 DR written while TXE = 0: a byte lost");
         }
-        self.tx_buf = Some(byte);
+        self.spi.tx_buf = Some(byte);
         if self.frame.is_none() {
             self.start_frame();
         }
@@ -76,13 +68,13 @@ impl IoModel {
 
     /// X1, X3: DR's byte goes on the wire.
     pub(super) fn start_frame(&mut self) {
-        let Some(out) = self.tx_buf.take() else {
+        let Some(out) = self.spi.tx_buf.take() else {
             return;
         };
-        let cr1 = self.spi_cr1;
+        let cr1 = self.spi.cr1;
         if cr1 & SPI_CR1_MSTR == 0 || cr1 & (SPI_CR1_SSM | SPI_CR1_SSI) != SPI_CR1_SSM | SPI_CR1_SSI
         {
-            self.modf = true;
+            self.spi.modf = true;
             self.violate(format!(
                 "X1: SPI2 frame with CR1 = {cr1:#06x}: not a master with NSS held high"
             ));
@@ -119,7 +111,7 @@ impl IoModel {
             return;
         };
         f.step += 1;
-        let cpha = self.spi_cr1 & SPI_CR1_CPHA != 0;
+        let cpha = self.spi.cr1 & SPI_CR1_CPHA != 0;
         let cpol = self.cpol();
         let k = f.step;
         if k == 16 {
@@ -128,14 +120,14 @@ impl IoModel {
                 self.spi_sck = cpol;
             }
             self.frame = None;
-            if self.rxne {
-                self.ovr = true;
+            if self.spi.rxne {
+                self.spi.ovr = true;
             } else {
-                self.rx_buf = f.got;
-                self.rxne = true;
+                self.spi.rx_buf = f.got;
+                self.spi.rxne = true;
             }
             self.update_pins();
-            if self.tx_buf.is_some() {
+            if self.spi.tx_buf.is_some() {
                 self.start_frame();
             }
             self.spi_requests();
