@@ -217,17 +217,12 @@ impl Powerstep01 {
     pub(super) fn step(&mut self, avail: u64) -> Option<u64> {
         match self.motion {
             Motion::Idle => None,
-            Motion::Stopping { hiz } => match self.decel_to_stop(avail) {
-                Ph::Used(n) => Some(n),
-                Ph::Wait => None,
-                Ph::Done => {
-                    self.motion = Motion::Idle;
-                    if hiz {
-                        self.hiz = true;
-                    }
-                    Some(0)
+            Motion::Stopping { hiz } => self.stop_then(avail, |e| {
+                e.motion = Motion::Idle;
+                if hiz {
+                    e.hiz = true;
                 }
-            },
+            }),
             Motion::Speed { dir, spd, .. } => self.step_speed(dir, spd, avail),
             Motion::Position {
                 dir,
@@ -259,16 +254,22 @@ impl Powerstep01 {
         Ok(whole.min(avail))
     }
 
+    /// Brake to a stop (DEC to the floor, then 0), then `done`: the step's
+    /// result (ticks used, `None` waiting, `Some(0)` once stopped).
+    fn stop_then(&mut self, avail: u64, done: impl FnOnce(&mut Self)) -> Option<u64> {
+        match self.decel_to_stop(avail) {
+            Ph::Used(n) => Some(n),
+            Ph::Wait => None,
+            Ph::Done => {
+                done(self);
+                Some(0)
+            }
+        }
+    }
+
     pub(super) fn step_speed(&mut self, dir: Direction, spd: u64, avail: u64) -> Option<u64> {
         if self.dir != dir {
-            return match self.decel_to_stop(avail) {
-                Ph::Used(n) => Some(n),
-                Ph::Wait => None,
-                Ph::Done => {
-                    self.flip(dir);
-                    Some(0)
-                }
-            };
+            return self.stop_then(avail, |e| e.flip(dir));
         }
         let vt = self.speed_target(spd);
         let v = self.v;
@@ -334,16 +335,11 @@ impl Powerstep01 {
         avail: u64,
     ) -> Option<u64> {
         if self.dir != dir {
-            return match self.decel_to_stop(avail) {
-                Ph::Used(n) => Some(n),
-                Ph::Wait => None,
-                Ph::Done => {
-                    self.flip(dir);
-                    let rem = dist_in_dir(dir, self.abs_raw(), target);
-                    self.set_position_state(dir, target, rem, false);
-                    Some(0)
-                }
-            };
+            return self.stop_then(avail, |e| {
+                e.flip(dir);
+                let rem = dist_in_dir(dir, e.abs_raw(), target);
+                e.set_position_state(dir, target, rem, false);
+            });
         }
         if remaining == 0 {
             self.land(dir, 0);
