@@ -19,11 +19,15 @@
 //! costs them, half hidden by the prefetch buffer when the miss is
 //! sequential (RM0090 §3.4.1): 2.5 cycles, else 5. Not timed tests.
 
+mod chain;
 pub mod cost;
 pub mod cycles;
 pub mod disasm;
+mod ioext;
 mod tick;
 
+pub use chain::chain_cpu;
+pub use ioext::ioext_cpu;
 pub use tick::tick_cpu;
 
 use std::collections::HashMap;
@@ -228,62 +232,116 @@ fn objdump(elf: &Path, lines: bool) -> Result<Disasm> {
     Ok(Disasm::parse(&String::from_utf8_lossy(&out.stdout)))
 }
 
-/// A bench run: the image, its marker functions (counter 0 first) and the
-/// function that writes the report, QEMU's serial ports and semihosting.
-struct Run<'a> {
-    elf: &'a Path,
-    marks: &'a [&'a str],
-    dump: &'a str,
-    /// The function whose run ends an epoch (a tick), if any.
-    epoch: Option<&'a str>,
-    serials: &'a [&'a str],
-    semihosting: String,
-    out: PathBuf,
+/// What a bench counts: a bin of `firmware/armcount-bench` (its name and
+/// features) or an on-target test of the firmware (its name).
+enum Image<'a> {
+    Bench(&'a str, &'a [&'a str]),
+    FirmwareTest(&'a str),
 }
 
-fn count(qemu: &Qemu, plugin: &Path, d: &Disasm, r: &Run) -> Result<Counts> {
-    let addr = |name: &str| -> Result<u64> {
-        d.symbol(name)
-            .ok_or_else(|| format!("no function {name} in {}", r.elf.display()).into())
-    };
-    let mut arg = plugin.display().to_string();
-    for m in r.marks {
-        let _ = write!(arg, ",mark={:#x}", addr(m)?);
+/// A bench run: the image, its marker functions (counter 0 first), the
+/// function that writes the report, the one whose run ends an epoch (a
+/// tick) if any, and the report's file in target/armcount-bench.
+struct Run<'a> {
+    image: Image<'a>,
+    marks: &'a [&'a str],
+    dump: &'a str,
+    epoch: Option<&'a str>,
+    out: &'a str,
+}
+
+/// What every bench runs on: the thumbv7em target, QEMU 7.x and the
+/// plugin.
+struct Armcount {
+    qemu: Qemu,
+    plugin: PathBuf,
+}
+
+impl Armcount {
+    /// Install what is missing and build the plugin.
+    fn new() -> Result<Self> {
+        setup::ensure_target()?;
+        let qemu = setup::qemu()?;
+        let plugin = plugin()?;
+        Ok(Armcount { qemu, plugin })
     }
-    let _ = write!(arg, ",dump={:#x},out={}", addr(r.dump)?, r.out.display());
-    if let Some(e) = r.epoch {
-        let _ = write!(arg, ",epoch={:#x}", addr(e)?);
+
+    /// Build `r`'s image and count it: its disassembly (with the line
+    /// tables when `lines`) and the plugin's report. A firmware test gets
+    /// its name and a settings flash file of its own as semihosting
+    /// arguments.
+    fn run(&self, r: &Run, lines: bool) -> Result<(Disasm, Counts)> {
+        let elf = match r.image {
+            Image::Bench(bin, features) => bench_image(bin, features)?,
+            Image::FirmwareTest(name) => firmware_test_image(name)?,
+        };
+        let d = objdump(&elf, lines)?;
+        let c = match r.image {
+            Image::Bench(..) => self.count(&elf, &d, r, "enable=on,target=native")?,
+            Image::FirmwareTest(name) => {
+                let flash = util::TempDir::new(&format!("stepbridge-{}", name.replace('_', "-")))?;
+                let semihosting = format!(
+                    "enable=on,target=native,arg={name},arg=flash={}",
+                    flash.path().join("flash.bin").display()
+                );
+                self.count(&elf, &d, r, &semihosting)?
+            }
+        };
+        Ok((d, c))
     }
-    if let Some(dir) = r.out.parent() {
-        std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+
+    /// Run `elf` under QEMU with the plugin: its report.
+    fn count(&self, elf: &Path, d: &Disasm, r: &Run, semihosting: &str) -> Result<Counts> {
+        let addr = |name: &str| -> Result<u64> {
+            d.symbol(name)
+                .ok_or_else(|| format!("no function {name} in {}", elf.display()).into())
+        };
+        let report = util::target_dir().join("armcount-bench").join(r.out);
+        let mut arg = self.plugin.display().to_string();
+        for m in r.marks {
+            let _ = write!(arg, ",mark={:#x}", addr(m)?);
+        }
+        let _ = write!(arg, ",dump={:#x},out={}", addr(r.dump)?, report.display());
+        if let Some(e) = r.epoch {
+            let _ = write!(arg, ",epoch={:#x}", addr(e)?);
+        }
+        if let Some(dir) = report.parent() {
+            std::fs::create_dir_all(dir).map_err(|e| format!("{}: {e}", dir.display()))?;
+        }
+        let _ = std::fs::remove_file(&report);
+        let mut c = Command::new(&self.qemu.bin);
+        c.args(["-M", "netduinoplus2", "-nographic", "-monitor", "none"]);
+        // A firmware test has the QEMU image's Modbus USART (the second
+        // port) too: nowhere, as `cargo qemu-test` runs it.
+        let serials: &[&str] = match r.image {
+            Image::Bench(..) => &["none"],
+            Image::FirmwareTest(_) => &["none", "null"],
+        };
+        for s in serials {
+            c.args(["-serial", s]);
+        }
+        c.arg("-semihosting-config").arg(semihosting);
+        c.arg("-kernel")
+            .arg(elf)
+            .arg("-plugin")
+            .arg(&arg)
+            .args(["-d", "plugin"]);
+        if let Some(dir) = &self.qemu.data_dir {
+            c.arg("-L").arg(dir);
+        }
+        let out = util::capture(&mut c)?;
+        if !out.status.success() {
+            eprint!("{}", String::from_utf8_lossy(&out.stderr));
+            bail!(
+                "the bench {} failed (QEMU status {})",
+                elf.display(),
+                util::code(out.status)
+            );
+        }
+        let text = std::fs::read_to_string(&report)
+            .map_err(|e| format!("no report from the plugin ({}): {e}", report.display()))?;
+        Counts::parse(&text)
     }
-    let _ = std::fs::remove_file(&r.out);
-    let mut c = Command::new(&qemu.bin);
-    c.args(["-M", "netduinoplus2", "-nographic", "-monitor", "none"]);
-    for s in r.serials {
-        c.args(["-serial", s]);
-    }
-    c.arg("-semihosting-config").arg(&r.semihosting);
-    c.arg("-kernel")
-        .arg(r.elf)
-        .arg("-plugin")
-        .arg(&arg)
-        .args(["-d", "plugin"]);
-    if let Some(dir) = &qemu.data_dir {
-        c.arg("-L").arg(dir);
-    }
-    let out = util::capture(&mut c)?;
-    if !out.status.success() {
-        eprint!("{}", String::from_utf8_lossy(&out.stderr));
-        bail!(
-            "the bench {} failed (QEMU status {})",
-            r.elf.display(),
-            util::code(out.status)
-        );
-    }
-    let text = std::fs::read_to_string(&r.out)
-        .map_err(|e| format!("no report from the plugin ({}): {e}", r.out.display()))?;
-    Counts::parse(&text)
 }
 
 // --- analysis --------------------------------------------------------------
@@ -322,11 +380,11 @@ fn is_bench(func: Option<&str>) -> bool {
     func.is_none_or(|f| {
         f.contains("armcost_mark")
             || f.contains("__cortex_m_rt_main")
-            || f.starts_with("tick_armcount::image::tick::")
             || f.starts_with("__Thumbv7ABSLongThunk_armcost")
-            // The bench's simulated bus glue (and its long-call thunks).
-            || f.contains("tick_armcount..image..Bus")
-            || f.contains("tick_armcount::image::Bus")
+            // tick-armcount's own functions (its loops and tick, the
+            // simulated bus glue, their long-call thunks): the bench's.
+            || f.contains("tick_armcount::image::")
+            || f.contains("tick_armcount..image..")
     })
 }
 
@@ -517,207 +575,9 @@ pub fn share(cycles: f64, hz: u32) -> f64 {
     100.0 * cycles * f64::from(hz) / SYSCLK_HZ
 }
 
-// --- the three benches -----------------------------------------------------
-
-/// `cargo xtask chain-cpu`: per event of a streaming batch on 8 chips (5
-/// windows of 8 bytes; firmware/tests/chain_cost.rs hands the driver the
-/// events its interrupts would, QEMU having no DMA and no TIM7), the
-/// empty-marker calibration subtracted, then a cycle estimate: 1.5 cycles
-/// per instruction (the control tick's own CPI with wait states is ~1.9;
-/// these paths are short and straight), plus 4 cycles per load or store that
-/// is not a stack or literal-pool access — a peripheral access costs 1 to 4
-/// wait cycles (AHB1 DMA2 / GPIOA, APB2 SPI1 at 84 MHz, APB1 TIM7 at 42
-/// MHz), RAM ones less, so the estimate errs high —, plus the exception
-/// entry and return of every interrupt (12 + 10 cycles on the Cortex-M4 with
-/// the FPU context unused: Cortex-M4 TRM §5.5.1; tail-chaining would save
-/// some). tests/chain_spi.rs logs the real cycles on a board.
-pub fn chain_cpu(args: &[String]) -> Result {
-    const N: u64 = 200;
-    const WINDOWS: u64 = 5;
-    const ENTRY_EXIT: f64 = 22.0;
-    setup::ensure_target()?;
-    let qemu = setup::qemu()?;
-    let plugin = plugin()?;
-    let elf = firmware_test_image("chain_cost")?;
-    let d = objdump(&elf, false)?;
-    let flash = util::TempDir::new("stepbridge-chain-cost")?;
-    let c = count(
-        &qemu,
-        &plugin,
-        &d,
-        &Run {
-            elf: &elf,
-            marks: &[
-                "armcost_mark_off",
-                "armcost_mark_start",
-                "armcost_mark_gap",
-                "armcost_mark_setup",
-                "armcost_mark_window",
-                "armcost_mark_last",
-                "armcost_mark_poll",
-                "armcost_mark_cal",
-            ],
-            dump: "armcost_mark_dump",
-            serials: &["none", "null"],
-            epoch: None,
-            semihosting: format!(
-                "enable=on,target=native,arg=chain_cost,arg=flash={}",
-                flash.path().join("flash.bin").display()
-            ),
-            out: util::target_dir().join("armcount-bench/chain.out"),
-        },
-    )?;
-    // Loads and stores other than stack and literal-pool ones: every
-    // peripheral access is one of them (RAM ones are counted too).
-    let mut acc: HashMap<usize, u64> = HashMap::new();
-    for p in &c.pcs {
-        if let Some(i) = d.insns.get(&p.pc) {
-            let ldst = i.mnemonic.starts_with("ldr") || i.mnemonic.starts_with("str");
-            if ldst && !i.operands.contains("[sp") && !i.operands.contains("[pc") {
-                *acc.entry(p.counter).or_default() += p.count;
-            }
-        }
-    }
-    let events: [(usize, &str, u64, bool); 6] = [
-        (1, "start of a batch (control tick)", 1, false),
-        (
-            2,
-            "end of a gap (TIM7): CS low, set-up timed",
-            WINDOWS,
-            true,
-        ),
-        (3, "end of a set-up (TIM7): TXDMAEN", WINDOWS, true),
-        (
-            4,
-            "end of a window (DMA2_STREAM0): CS high, next armed, gap",
-            WINDOWS - 1,
-            true,
-        ),
-        (5, "end of the last window (DMA2_STREAM0)", 1, true),
-        (6, "hand-over (poll, control tick)", 1, false),
-    ];
-    let cal = c.insns(7) as f64 / N as f64;
-    println!(
-        "chain DMA driver, streaming batch of {WINDOWS} windows x 8 bytes ({N} batches; empty marker pair {cal:.0} instructions, subtracted)"
-    );
-    let (mut b_insn, mut b_cyc, mut i_insn, mut i_cyc) = (0.0, 0.0, 0.0, 0.0);
-    // The part in the control tick (start and hand-over).
-    let mut t_cyc = 0.0;
-    for (k, name, per, isr) in events {
-        let calls = (N * per) as f64;
-        let insn = c.insns(k) as f64 / calls - cal;
-        let a = acc.get(&k).copied().unwrap_or(0) as f64 / calls;
-        let cyc = 1.5 * insn + 4.0 * a + if isr { ENTRY_EXIT } else { 0.0 };
-        println!(
-            "  {name:58} {insn:6.0} instructions, ~{a:4.0} loads/stores, ~{cyc:5.0} cycles{}",
-            if isr { " (with entry/return)" } else { "" }
-        );
-        b_insn += insn * per as f64;
-        b_cyc += cyc * per as f64;
-        if isr {
-            i_insn += insn * per as f64;
-            i_cyc += cyc * per as f64;
-        } else {
-            t_cyc += cyc * per as f64;
-        }
-    }
-    println!(
-        "RESULT per batch: {b_insn:.0} instructions ({i_insn:.0} in {} interrupts), ~{b_cyc:.0} cycles ({i_cyc:.0} in the interrupts)",
-        3 * WINDOWS
-    );
-    for hz in RATES_HZ {
-        println!(
-            "RESULT CPU share of the chain driver at {} kHz: {:.2} %",
-            hz / 1000,
-            share(b_cyc, hz)
-        );
-    }
-    cost::check("CHAIN_DRIVER_TICK_CYCLES", t_cyc, tick::write_flag(args))
-}
-
-/// `cargo xtask ioext-cpu`: the I/O extension's CPU work per 256-bit
-/// transfer (8 axes, every input and lamp mapped; `ioext-armcount`), then
-/// the board driver's start of a transfer (drivers::ioext_spi,
-/// IoExtPort::run) on its own code, built for QEMU
-/// (firmware/tests/ioext_cost.rs): QEMU has no DMA and no TIM1, so only the
-/// start runs as on a board (its end never comes and is not counted). Per
-/// region, the empty-marker calibration subtracted.
-pub fn ioext_cpu(_args: &[String]) -> Result {
-    const N: f64 = 200.0;
-    setup::ensure_target()?;
-    let qemu = setup::qemu()?;
-    let plugin = plugin()?;
-    let elf = bench_image("ioext-armcount", &[])?;
-    let d = objdump(&elf, false)?;
-    let c = count(
-        &qemu,
-        &plugin,
-        &d,
-        &Run {
-            elf: &elf,
-            marks: &[
-                "mark_off",
-                "mark_tick",
-                "mark_spi",
-                "mark_complete",
-                "mark_timer",
-                "mark_cal",
-            ],
-            dump: "mark_dump",
-            serials: &["none"],
-            epoch: None,
-            semihosting: "enable=on,target=native".into(),
-            out: util::target_dir().join("armcount-bench/ioext.out"),
-        },
-    )?;
-    let per = |k: usize, cal: usize| c.insns(k) as f64 / N - c.insns(cal) as f64 / N;
-    println!(
-        "IoExtension::tick (plan, 24 lamps):         {:6.0} instructions",
-        per(1, 5)
-    );
-    println!(
-        "SPI engine: pack 32 bytes + unpack:         {:6.0} instructions",
-        per(2, 5)
-    );
-    println!(
-        "IoExtension::complete (32 inputs):          {:6.0} instructions",
-        per(3, 5)
-    );
-    println!(
-        "timer engine: BSRR table + port samples:    {:6.0} instructions",
-        per(4, 5)
-    );
-
-    let elf = firmware_test_image("ioext_cost")?;
-    let d = objdump(&elf, false)?;
-    let flash = util::TempDir::new("stepbridge-ioext-cost")?;
-    let c = count(
-        &qemu,
-        &plugin,
-        &d,
-        &Run {
-            elf: &elf,
-            marks: &["mark_off", "mark_spi", "mark_timer", "mark_cal"],
-            dump: "mark_dump",
-            serials: &["none", "null"],
-            epoch: None,
-            semihosting: format!(
-                "enable=on,target=native,arg=ioext_cost,arg=flash={}",
-                flash.path().join("flash.bin").display()
-            ),
-            out: util::target_dir().join("armcount-bench/ioext-cost.out"),
-        },
-    )?;
-    let per = |k: usize, cal: usize| c.insns(k) as f64 / N - c.insns(cal) as f64 / N;
-    println!(
-        "driver start, SPI engine, 256 bits (N = 0): {:6.0} instructions",
-        per(1, 3)
-    );
-    println!(
-        "driver start, bit engine, 256 bits (N = 255): {:4.0} instructions",
-        per(2, 3)
-    );
-    Ok(())
+/// `--write`: put the measurement into `rate/measured.rs` ([`cost`]).
+fn write_flag(args: &[String]) -> bool {
+    args.iter().any(|a| a == "--write")
 }
 
 #[cfg(test)]

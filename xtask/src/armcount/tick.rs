@@ -8,55 +8,86 @@
 
 use super::*;
 
+/// Ticks of each workload, and profile ticks (the counts are divided by it).
+const N: f64 = 20_000.0;
+
+/// The image's markers: counters 1–3 the cruise tick's parts, 4 the profile
+/// generator, 5 the calibration, 6–8 the moves tick's parts.
+const RUN: Run = Run {
+    image: Image::Bench("tick-armcount", &["sim"]),
+    marks: &[
+        "armcost_mark_off",
+        "armcost_mark_prepare",
+        "armcost_mark_run",
+        "armcost_mark_finish",
+        "armcost_mark_profile",
+        "armcost_mark_cal",
+        "armcost_mark_prepare2",
+        "armcost_mark_run2",
+        "armcost_mark_finish2",
+    ],
+    dump: "armcost_mark_dump",
+    epoch: Some("armcost_epoch"),
+    out: "tick.out",
+};
+
+/// Counters 1–5.
+const NAMES: [&str; 5] = [
+    "prepare (plan + profile generator + schedule/encode)",
+    "run_into minus bus windows (window loop + decode)",
+    "finish (absorb replies)",
+    "profile mode: one Profile::tick",
+    "calibration: empty marker pair",
+];
+
 /// `cargo xtask tick-cpu`.
 pub fn tick_cpu(args: &[String]) -> Result {
-    const N: f64 = 20_000.0;
-    setup::ensure_target()?;
-    let qemu = setup::qemu()?;
-    let plugin = plugin()?;
-    let elf = bench_image("tick-armcount", &["sim"])?;
-    let d = objdump(&elf, true)?;
-    let out = util::target_dir().join("armcount-bench/tick.out");
-    let c = count(
-        &qemu,
-        &plugin,
-        &d,
-        &Run {
-            elf: &elf,
-            marks: &[
-                "armcost_mark_off",
-                "armcost_mark_prepare",
-                "armcost_mark_run",
-                "armcost_mark_finish",
-                "armcost_mark_profile",
-                "armcost_mark_cal",
-                "armcost_mark_prepare2",
-                "armcost_mark_run2",
-                "armcost_mark_finish2",
-            ],
-            dump: "armcost_mark_dump",
-            serials: &["none"],
-            epoch: Some("armcost_epoch"),
-            semihosting: "enable=on,target=native".into(),
-            out,
-        },
-    )?;
-    let names = [
-        "prepare (plan + profile generator + schedule/encode)",
-        "run_into minus bus windows (window loop + decode)",
-        "finish (absorb replies)",
-        "profile mode: one Profile::tick",
-        "calibration: empty marker pair",
-    ];
+    let (d, c) = Armcount::new()?.run(&RUN, true)?;
     println!("N = {N} ticks; Thumb-2 instructions per tick (per call for counters 4 and 5)\n");
     let s: Vec<Stats> = (1..=5).map(|k| stats(&d, &c, k, N)).collect();
-    for (k, (name, st)) in names.iter().zip(&s).enumerate() {
+    for (k, (name, st)) in NAMES.iter().zip(&s).enumerate() {
         print_counter(k + 1, name, st);
     }
     let [prepare, run, finish, profile, _cal] = &s[..] else {
         bail!("five counters expected");
     };
     let tick = [prepare, run, finish];
+    summary(&tick, profile);
+    let total = cruise_results(&c, &tick, profile);
+    let moves: Vec<Stats> = (6..=8).map(|k| stats(&d, &c, k, N)).collect();
+    let (m_cyc, w_cyc) = moves_results(&c, &s, &moves);
+    // Where issue 22 started (a5b142a, this bench's cruise workload, code
+    // in flash), to compare with the lines above (docs/performance.md).
+    println!(
+        "RESULT before (a5b142a, 1 kHz build, cruise): 9285 instructions per tick, 1161 per axis-tick, 0 64-bit divisions, ART misses 1030 + 239, cycles 13472 + 3768 flash wait = 17240, CPU 10.3 / 20.5 / 51.3 / 102.6 % at 1 / 2 / 5 / 10 kHz"
+    );
+    let name = if tick_hz() >= 5000 {
+        "TICK_CYCLES_8_AXES_5KHZ"
+    } else {
+        "TICK_CYCLES_8_AXES_1KHZ"
+    };
+    // The fit takes the worst tick (every axis starting at once), so that
+    // a chain it fits holds every tick, not only the mean one.
+    cost::check(name, total.max(m_cyc).max(w_cyc), write_flag(args))
+}
+
+/// ART misses per tick of the three parts, warm and cold, each as
+/// (sequential, jumps).
+fn art_misses(tick: &[&Stats; 3]) -> ((f64, f64), (f64, f64)) {
+    let warm = tick
+        .iter()
+        .fold((0.0, 0.0), |a, t| (a.0 + t.warm.0, a.1 + t.warm.1));
+    let cold = tick
+        .iter()
+        .fold((0.0, 0.0), |a, t| (a.0 + t.cold.0, a.1 + t.cold.1));
+    (warm, cold)
+}
+
+/// The SUMMARY lines: the whole cruise tick (callgrind's scope, then with
+/// run_into's CPU part), its cycles at each model and ART misses, and the
+/// profile generator.
+fn summary(tick: &[&Stats; 3], profile: &Stats) {
+    let [prepare, run, finish] = *tick;
     let pf = prepare.net + finish.net;
     let insn: f64 = tick.iter().map(|t| t.net).sum();
     println!(
@@ -71,12 +102,7 @@ pub fn tick_cpu(args: &[String]) -> Result {
             c1 + run.cycles[i]
         );
     }
-    let warm = tick
-        .iter()
-        .fold((0.0, 0.0), |a, t| (a.0 + t.warm.0, a.1 + t.warm.1));
-    let cold = tick
-        .iter()
-        .fold((0.0, 0.0), |a, t| (a.0 + t.cold.0, a.1 + t.cold.1));
+    let (warm, cold) = art_misses(tick);
     println!(
         "  ART misses/tick (counters 1-3): warm {:.0} seq + {:.0} jump; cold {:.0} seq + {:.0} jump",
         warm.0, warm.1, cold.0, cold.1
@@ -86,6 +112,12 @@ pub fn tick_cpu(args: &[String]) -> Result {
         profile.net, profile.cycles[0], profile.cycles[1], profile.cycles[2]
     );
     println!();
+}
+
+/// The cruise workload's RESULT lines (instructions, division calls, ART
+/// misses, cycles, what ran from SRAM, CPU shares): its cycles per tick.
+fn cruise_results(c: &Counts, tick: &[&Stats; 3], profile: &Stats) -> f64 {
+    let insn: f64 = tick.iter().map(|t| t.net).sum();
     let div: f64 = tick
         .iter()
         .flat_map(|t| t.calls.iter())
@@ -97,6 +129,7 @@ pub fn tick_cpu(args: &[String]) -> Result {
     let flash: f64 = tick.iter().map(|t| t.flash_wait()).sum();
     let total = core + flash;
     let tick_us = 1_000_000 / tick_hz().max(1);
+    let (warm, cold) = art_misses(tick);
     println!(
         "RESULT tick {tick_us} us, 8 axes: {insn:.0} Thumb-2 instructions per tick, {:.0} per axis-tick; 64-bit division calls per tick: {div:.2}",
         insn / 8.0
@@ -132,9 +165,15 @@ pub fn tick_cpu(args: &[String]) -> Result {
             share(total, hz)
         );
     }
-    let moves: Vec<Stats> = (6..=8).map(|k| stats(&d, &c, k, N)).collect();
-    let (m_insn, m_cyc, worst) = workload(&c, &moves, 6);
-    let (_, _, c_worst) = workload(&c, &s[..3], 1);
+    total
+}
+
+/// The moves workload's RESULT line and the worst tick's, from the cruise
+/// counters 1–5 and the moves ones 6–8: the moves' cycles per tick and the
+/// worst tick's.
+fn moves_results(c: &Counts, cruise: &[Stats], moves: &[Stats]) -> (f64, f64) {
+    let (m_insn, m_cyc, worst) = workload(c, moves, 6);
+    let (_, _, c_worst) = workload(c, &cruise[..3], 1);
     println!(
         "RESULT moves workload (8 axes back and forth: ramps, braking, landing, starts): {m_insn:.0} instructions per tick, {:.0} per axis-tick; {m_cyc:.0} cycles",
         m_insn / 8.0
@@ -145,7 +184,7 @@ pub fn tick_cpu(args: &[String]) -> Result {
     // bounds it from above.
     let overhead = |ks: &[usize]| -> f64 {
         ks.iter()
-            .filter_map(|k| s.get(k - 1).or_else(|| moves.get(k - 6)))
+            .filter_map(|k| cruise.get(k - 1).or_else(|| moves.get(k - 6)))
             .map(|t| t.raw - t.net)
             .sum::<f64>()
     };
@@ -162,19 +201,7 @@ pub fn tick_cpu(args: &[String]) -> Result {
         if at <= N as u64 { "cruise" } else { "moves" },
         share(w_cyc, 5000)
     );
-    // Where issue 22 started (a5b142a, this bench's cruise workload, code
-    // in flash), to compare with the lines above (docs/performance.md).
-    println!(
-        "RESULT before (a5b142a, 1 kHz build, cruise): 9285 instructions per tick, 1161 per axis-tick, 0 64-bit divisions, ART misses 1030 + 239, cycles 13472 + 3768 flash wait = 17240, CPU 10.3 / 20.5 / 51.3 / 102.6 % at 1 / 2 / 5 / 10 kHz"
-    );
-    let name = if tick_hz() >= 5000 {
-        "TICK_CYCLES_8_AXES_5KHZ"
-    } else {
-        "TICK_CYCLES_8_AXES_1KHZ"
-    };
-    // The fit takes the worst tick (every axis starting at once), so that
-    // a chain it fits holds every tick, not only the mean one.
-    cost::check(name, total.max(m_cyc).max(w_cyc), write_flag(args))
+    (m_cyc, w_cyc)
 }
 
 /// Per tick of a workload whose three parts are counters `first`..: the
@@ -193,9 +220,4 @@ fn workload(c: &Counts, parts: &[Stats], first: usize) -> (f64, f64, f64) {
         })
         .sum();
     (insn, cyc, worst)
-}
-
-/// `--write`: put the measurement into `rate/measured.rs` ([`cost`]).
-pub(super) fn write_flag(args: &[String]) -> bool {
-    args.iter().any(|a| a == "--write")
 }

@@ -10,14 +10,10 @@
 //! ioext-cpu`); on the host this bin is an empty `main`.
 #![cfg_attr(target_os = "none", no_std, no_main)]
 
+/// The I/O extension's settings, its markers and the measured loop (the
+/// panic handler and `__pre_init` are the library's, src/lib.rs).
 #[cfg(target_os = "none")]
 mod image;
-
-/// memory.x's code in SRAM, copied before anything runs.
-#[cfg(target_os = "none")]
-// The firmware's own `__pre_init`, so the bench images copy `.ramtext` the same way.
-#[path = "../../../../src/ramtext.rs"]
-mod ramtext;
 
 #[cfg(not(target_os = "none"))]
 fn main() {}

@@ -1,3 +1,4 @@
+use armcount_bench::marker;
 use bridge_logic::motion::{Axis, AxisConfig, AxisGroup, Limits, Profile};
 use bridge_logic::powerstep::chain::{Chain, ChainBus, Replies};
 use bridge_logic::powerstep::{DriveMode, StepSel};
@@ -13,15 +14,6 @@ const N: u32 = 20_000;
 /// Measured profile ticks.
 const NP: u32 = N;
 
-macro_rules! marker {
-    ($name:ident, $v:expr) => {
-        #[inline(never)]
-        #[no_mangle]
-        pub extern "C" fn $name() {
-            black_box($v as u32);
-        }
-    };
-}
 marker!(armcost_mark_off, 0x1111_0000u32);
 marker!(armcost_mark_prepare, 0x2222_0001u32);
 marker!(armcost_mark_run, 0x3333_0002u32);
@@ -34,11 +26,6 @@ marker!(armcost_mark_run2, 0x3333_0008u32);
 marker!(armcost_mark_finish2, 0x4444_0009u32);
 // Not a counter: ends a tick (the plugin's `epoch`), run while counting is off.
 marker!(armcost_epoch, 0x8888_000Au32);
-
-#[panic_handler]
-fn panic(_: &core::panic::PanicInfo) -> ! {
-    semihosting::process::exit(1)
-}
 
 /// The simulated chain with the counting paused while a window is on the
 /// (simulated) wire: what is left of `run_into` is the CPU's part.
@@ -104,8 +91,9 @@ fn tick(
     chain.bus_mut().sim.advance(tick_ns);
 }
 
-#[entry]
-fn main() -> ! {
+/// The chain of 8 simulated chips, detected (exit status 2 otherwise); its
+/// bus counts nothing until a workload starts.
+fn detected_chain() -> Chain<Bus> {
     let mut chain = Chain::new(Bus {
         sim: SimChain::new(8),
         counting: false,
@@ -114,6 +102,12 @@ fn main() -> ! {
     if chain.detect() != Ok(8) {
         semihosting::process::exit(2)
     }
+    chain
+}
+
+/// 8 axes, logical step modes 1/1 … 1/256 on 1/128 chips (exit status 3
+/// if the group refuses one).
+fn axis_group() -> AxisGroup {
     let mut group = AxisGroup::new();
     for k in 0..8u8 {
         let cfg = AxisConfig {
@@ -126,6 +120,91 @@ fn main() -> ! {
             semihosting::process::exit(3)
         }
     }
+    group
+}
+
+/// The cruise workload (counters 1–3, and 5 after each tick): every axis
+/// streaming its long move, every tick the same.
+fn cruise(group: &mut AxisGroup, chain: &mut Chain<Bus>, replies: &mut Replies, tick_ns: u64) {
+    chain.bus_mut().counting = true;
+    let marks = Marks {
+        prepare: armcost_mark_prepare,
+        run: armcost_mark_run,
+        finish: armcost_mark_finish,
+    };
+    for _ in 0..N {
+        tick(group, chain, replies, &marks, tick_ns);
+        armcost_mark_cal();
+        armcost_mark_off();
+        armcost_epoch();
+    }
+    chain.bus_mut().counting = false;
+}
+
+/// Stop every axis and wait until the group has settled (not measured).
+fn stop_all(group: &mut AxisGroup, chain: &mut Chain<Bus>, tick_ns: u64) {
+    for k in 0..8 {
+        if let Some(a) = group.axis_mut(k) {
+            a.soft_stop();
+        }
+    }
+    for _ in 0..200_000 {
+        if group.is_settled() {
+            break;
+        }
+        let _ = group.tick(chain);
+        chain.bus_mut().sim.advance(tick_ns);
+    }
+}
+
+/// The moves workload (counters 6–8): every axis moves back and forth
+/// (40 000 logical steps, a triangle profile: ramps, braking, stop and
+/// landing, the next move's start), each starting when the last one has
+/// landed.
+fn moves(group: &mut AxisGroup, chain: &mut Chain<Bus>, replies: &mut Replies, tick_ns: u64) {
+    let bus = chain.bus_mut();
+    bus.resume = armcost_mark_run2;
+    bus.counting = true;
+    let marks = Marks {
+        prepare: armcost_mark_prepare2,
+        run: armcost_mark_run2,
+        finish: armcost_mark_finish2,
+    };
+    let mut out = [true; 8];
+    for _ in 0..N {
+        for (k, o) in out.iter_mut().enumerate() {
+            if let Some(a) = group.axis_mut(k) {
+                if a.is_settled() {
+                    let here = a.required_position();
+                    a.move_to(if *o { here + 40_000 } else { here - 40_000 });
+                    *o = !*o;
+                }
+            }
+        }
+        tick(group, chain, replies, &marks, tick_ns);
+        armcost_mark_off();
+        armcost_epoch();
+    }
+    chain.bus_mut().counting = false;
+}
+
+/// Counter 4: `Profile::tick` of a long move, on its own.
+fn profile_ticks() {
+    let mut p = Profile::new(TICK_US, limits());
+    p.move_to(1 << 40);
+    let mut acc = 0i64;
+    for _ in 0..NP {
+        armcost_mark_profile();
+        acc = acc.wrapping_add(p.tick());
+        armcost_mark_off();
+    }
+    black_box(acc);
+}
+
+#[entry]
+fn main() -> ! {
+    let mut chain = detected_chain();
+    let mut group = axis_group();
     let tick_ns = u64::from(TICK_US) * 1000;
     let mut replies = Replies::default();
     // Configure the chips and start a long move on every axis (not measured).
@@ -138,67 +217,10 @@ fn main() -> ! {
             a.move_to(if k % 2 == 0 { 1 << 30 } else { -(1 << 30) });
         }
     }
-    chain.bus_mut().counting = true;
-    let marks = Marks {
-        prepare: armcost_mark_prepare,
-        run: armcost_mark_run,
-        finish: armcost_mark_finish,
-    };
-    for _ in 0..N {
-        tick(&mut group, &mut chain, &mut replies, &marks, tick_ns);
-        armcost_mark_cal();
-        armcost_mark_off();
-        armcost_epoch();
-    }
-    // The moves workload: every axis moves back and forth (40 000 logical
-    // steps, a triangle profile: ramps, braking, stop and landing, the
-    // next move's start), each starting when the last one has landed.
-    chain.bus_mut().resume = armcost_mark_run2;
-    let marks = Marks {
-        prepare: armcost_mark_prepare2,
-        run: armcost_mark_run2,
-        finish: armcost_mark_finish2,
-    };
-    // Stop the long moves first (not measured).
-    chain.bus_mut().counting = false;
-    for k in 0..8 {
-        if let Some(a) = group.axis_mut(k) {
-            a.soft_stop();
-        }
-    }
-    for _ in 0..200_000 {
-        if group.is_settled() {
-            break;
-        }
-        let _ = group.tick(&mut chain);
-        chain.bus_mut().sim.advance(tick_ns);
-    }
-    chain.bus_mut().counting = true;
-    let mut out = [true; 8];
-    for _ in 0..N {
-        for (k, o) in out.iter_mut().enumerate() {
-            if let Some(a) = group.axis_mut(k) {
-                if a.is_settled() {
-                    let here = a.required_position();
-                    a.move_to(if *o { here + 40_000 } else { here - 40_000 });
-                    *o = !*o;
-                }
-            }
-        }
-        tick(&mut group, &mut chain, &mut replies, &marks, tick_ns);
-        armcost_mark_off();
-        armcost_epoch();
-    }
-    chain.bus_mut().counting = false;
-    let mut p = Profile::new(TICK_US, limits());
-    p.move_to(1 << 40);
-    let mut acc = 0i64;
-    for _ in 0..NP {
-        armcost_mark_profile();
-        acc = acc.wrapping_add(p.tick());
-        armcost_mark_off();
-    }
-    black_box(acc);
+    cruise(&mut group, &mut chain, &mut replies, tick_ns);
+    stop_all(&mut group, &mut chain, tick_ns);
+    moves(&mut group, &mut chain, &mut replies, tick_ns);
+    profile_ticks();
     armcost_mark_dump();
     semihosting::process::exit(0)
 }
