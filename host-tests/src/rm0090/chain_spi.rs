@@ -374,11 +374,6 @@ impl ChainModel {
         }
     }
 
-    fn spi_sr(&mut self) -> u32 {
-        let busy = self.shift.is_some() || self.spi.tx_buf.is_some();
-        self.spi.read_sr(busy)
-    }
-
     // --------------------------------------------------------- DMA --
 
     /// S6, S9: serve the streams' requests.
@@ -613,10 +608,10 @@ impl super::RegisterFile<ChainReg> for ChainModel {
 
     fn read_reg(&mut self, reg: ChainReg) -> u32 {
         match reg {
-            ChainReg::Spi(SpiReg::Cr1) => self.spi.cr1,
-            ChainReg::Spi(SpiReg::Cr2) => self.spi.cr2,
-            ChainReg::Spi(SpiReg::Sr) => self.spi_sr(),
-            ChainReg::Spi(SpiReg::Dr) => self.spi.read_dr(),
+            ChainReg::Spi(r) => {
+                let busy = self.shift.is_some() || self.spi.tx_buf.is_some();
+                self.spi.read(r, busy)
+            }
             ChainReg::Dma(DmaReg::Lisr) => self.lisr,
             // Streams 4–7 are not the chain's: their HISR reads 0 here.
             ChainReg::Dma(DmaReg::Hisr | DmaReg::Lifcr | DmaReg::Hifcr) => 0,

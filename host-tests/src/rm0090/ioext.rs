@@ -615,12 +615,10 @@ impl super::RegisterFile<IoReg> for IoModel {
 
     fn read_reg(&mut self, reg: IoReg) -> u32 {
         match reg {
-            IoReg::Spi(r) => match r {
-                SpiReg::Cr1 => self.spi.cr1,
-                SpiReg::Cr2 => self.spi.cr2,
-                SpiReg::Sr => self.spi_sr(),
-                SpiReg::Dr => self.spi.read_dr(),
-            },
+            IoReg::Spi(r) => {
+                let busy = self.busy();
+                self.spi.read(r, busy)
+            }
             IoReg::Dma1(r) => self.dma_read(1, r),
             IoReg::Dma2(r) => self.dma_read(2, r),
             IoReg::Tim(r) => self.tim_read(r),

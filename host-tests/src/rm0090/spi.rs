@@ -6,6 +6,7 @@
 //! the model.
 
 use drivers_core::spi::bits::*;
+use drivers_core::spi::SpiReg;
 
 /// One SPI's registers and flags.
 #[derive(Clone, Copy, Debug, Default)]
@@ -38,6 +39,16 @@ impl SpiPort {
             self.dr_read = false;
         }
         v
+    }
+
+    /// A register read; `busy` is BSY (the model's frame in progress).
+    pub fn read(&mut self, reg: SpiReg, busy: bool) -> u32 {
+        match reg {
+            SpiReg::Cr1 => self.cr1,
+            SpiReg::Cr2 => self.cr2,
+            SpiReg::Sr => self.read_sr(busy),
+            SpiReg::Dr => self.read_dr(),
+        }
     }
 
     /// DR as read: the last byte received; clears RXNE.

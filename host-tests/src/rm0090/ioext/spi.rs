@@ -47,11 +47,6 @@ impl IoModel {
         self.frame.is_some() || self.spi.tx_buf.is_some()
     }
 
-    pub(super) fn spi_sr(&mut self) -> u32 {
-        let busy = self.busy();
-        self.spi.read_sr(busy)
-    }
-
     pub(super) fn dr_write(&mut self, byte: u8) {
         if !self.spi_enabled() {
             self.violate("X1: SPI2 DR written with SPE = 0");
