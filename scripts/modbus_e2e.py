@@ -276,13 +276,21 @@ def check_saved(client):
     check(read(client, END_SWITCH, 1, HOME_SID)[0] == 1, f"id {HOME_SID}: end switch still enabled after the restart")
 
 
-def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def client_args(description, move_what):
+    """The options every Modbus client script takes: where the image's
+    USART2 socket is, the response and connect timeouts, and how long to
+    wait for `move_what` to arrive."""
+    ap = argparse.ArgumentParser(description=description)
     ap.add_argument("--host", default="127.0.0.1")
     ap.add_argument("--port", type=int, default=5020)
     ap.add_argument("--timeout", type=float, default=2.0, help="response timeout per request, s")
     ap.add_argument("--connect-timeout", type=float, default=20.0, help="s to wait for the port")
-    ap.add_argument("--move-timeout", type=float, default=30.0, help="s to wait for both axes")
+    ap.add_argument("--move-timeout", type=float, default=30.0, help=f"s to wait for {move_what}")
+    return ap
+
+
+def main():
+    ap = client_args(__doc__.splitlines()[0], "both axes")
     ap.add_argument("--save", action="store_true", help="write settings after the scenario")
     ap.add_argument("--check-saved", action="store_true", help="only check the saved settings after a restart")
     args = ap.parse_args()

@@ -21,12 +21,11 @@ With --limit N it exits 1 when an axis passed its target by more than N
 steps (0: none at all), 2 on a Modbus failure.
 """
 
-import argparse
 import logging
 import sys
 import time
 
-from modbus_e2e import Failure, connect, failed, i32, read, words
+from modbus_e2e import Failure, client_args, connect, failed, i32, read, words
 from modbus_e2e import write_many as write
 
 POSITION = 0x0040
@@ -80,12 +79,7 @@ def run(client, args):
 
 
 def main():
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--host", default="127.0.0.1")
-    ap.add_argument("--port", type=int, default=5020)
-    ap.add_argument("--timeout", type=float, default=2.0, help="response timeout per request, s")
-    ap.add_argument("--connect-timeout", type=float, default=20.0, help="s to wait for the port")
-    ap.add_argument("--move-timeout", type=float, default=30.0, help="s to wait for every axis")
+    ap = client_args(__doc__.splitlines()[0], "every axis")
     ap.add_argument("--ids", type=lambda s: [int(x) for x in s.split(",")], default=list(SIDS))
     ap.add_argument("--target", type=int, default=150_000, help="steps")
     ap.add_argument("--speed-acc-dec", type=int, default=65_535, help="max speed, acc and dec written")
