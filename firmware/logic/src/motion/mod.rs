@@ -1,9 +1,11 @@
 //! Motion: the trapezoidal profile generator ([`profile`]), the axis output
 //! stage that turns its setpoints into chain commands ([`axis`]), homing
-//! ([`homing`]) and the group of axes ticked together ([`group`]). Knows
-//! nothing of bytes on any bus.
+//! ([`homing`]), the group of axes ticked together ([`group`]) and the
+//! shared profile of a coordinated straight-line move ([`coord`], not yet
+//! reachable from a bus). Knows nothing of bytes on any bus.
 
 pub mod axis;
+pub mod coord;
 pub mod divisor;
 pub mod group;
 pub mod homing;

@@ -1,0 +1,296 @@
+//! A coordinated straight-line move of several axes: the shared profile of
+//! issue 23's coordinated moves, on its own. Not reachable from any bus yet
+//! (the group's per-tick streaming, the path queue with its junction rule,
+//! group stops and the register block are the next steps, listed as
+//! missing in the README).
+//!
+//! # What it guarantees
+//!
+//! * **One profile, one line.** A [`Line`] from `start` to `target` runs one
+//!   trapezoidal [`Profile`] over the path parameter `s ∈ [0, L]`, where
+//!   `L = maxᵢ |targetᵢ − startᵢ|` (the distance of the axis that travels
+//!   farthest: path speeds are that axis's steps/s). Axis `i` is at
+//!   `startᵢ + dᵢ · s / L` every tick, exactly (2⁻³³ steps), so the rounded
+//!   position of every axis is within half a step of the straight line
+//!   through the two points, and every axis lands exactly on its target in
+//!   the same tick (the profile lands exactly on `L`).
+//! * **No axis exceeds its own limits.** The path's limits are the smallest
+//!   of the requested path limits and, for every moving axis,
+//!   `⌊limitᵢ · L / |dᵢ|⌋`: axis `i` moves at `|dᵢ| / L` of the path's speed,
+//!   acceleration and deceleration, so it never exceeds its max speed,
+//!   acceleration or deceleration (the most constrained axis sets the pace).
+//!   The profile's own one-quantum minimum acceleration (2⁻³² steps/tick²)
+//!   is the only exception, as for a single axis.
+//! * **Exact integers.** Offsets are `i64` steps, the path parameter is the
+//!   profile's `i128` in 2⁻³³ steps; `|dᵢ| ≤ 2³²` keeps `dᵢ · s` below 2⁹⁸.
+//!   A longer component is refused ([`CoordError::TooLong`]).
+
+// Exact integer maths on bounded values: components ≤ 2³² steps (checked in
+// `Line::new`), so every product below fits its i128/u128.
+#![allow(clippy::arithmetic_side_effects)]
+
+use super::profile::{Limits, Profile};
+
+/// Axes in one coordinated move: a chain's most.
+pub const MAX_AXES: usize = 8;
+
+/// Longest component of a coordinated move, steps (2³²).
+pub const MAX_COMPONENT: u64 = 1 << 32;
+
+/// 2⁻³³ steps per step (the profile's position unit).
+const POS_FRAC: u32 = 33;
+
+/// Why a coordinated move was not planned.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum CoordError {
+    /// No axis named.
+    NoAxes,
+    /// More than [`MAX_AXES`] axes.
+    TooManyAxes,
+    /// `start`, `target` and `limits` name different numbers of axes.
+    LengthMismatch,
+    /// A component longer than [`MAX_COMPONENT`] steps.
+    TooLong,
+}
+
+/// A coordinated move in progress (module doc).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Line {
+    n: usize,
+    start: [i64; MAX_AXES],
+    delta: [i64; MAX_AXES],
+    /// `L`, steps (0: nothing moves).
+    length: i64,
+    path: Profile,
+}
+
+/// `⌊limit · L / |d|⌋`, at most `u32::MAX` (the path limit axis `d` allows).
+fn scaled(limit: u32, length: u64, d: u64) -> u32 {
+    if d == 0 {
+        return u32::MAX;
+    }
+    let q = u128::from(limit.max(1)) * u128::from(length) / u128::from(d);
+    u32::try_from(q).unwrap_or(u32::MAX)
+}
+
+/// The path's limits: `path` capped by every moving axis's scaled limits.
+pub fn path_limits(deltas: &[i64], limits: &[Limits], path: Limits) -> Limits {
+    let length = deltas.iter().map(|d| d.unsigned_abs()).max().unwrap_or(0);
+    let mut out = Limits {
+        max_speed: path.max_speed.max(1),
+        acc: path.acc.max(1),
+        dec: path.dec.max(1),
+    };
+    for (d, l) in deltas.iter().zip(limits) {
+        let d = d.unsigned_abs();
+        out.max_speed = out.max_speed.min(scaled(l.max_speed, length, d));
+        out.acc = out.acc.min(scaled(l.acc, length, d));
+        out.dec = out.dec.min(scaled(l.dec, length, d));
+    }
+    out
+}
+
+impl Line {
+    /// Plan the move of the axes at `start` to `target` (logical steps),
+    /// each within its `limits`, at most at the `path` limits (in steps of
+    /// the axis that travels farthest), ticked every `tick_us` µs.
+    pub fn new(
+        tick_us: u32,
+        start: &[i64],
+        target: &[i64],
+        limits: &[Limits],
+        path: Limits,
+    ) -> Result<Line, CoordError> {
+        let n = start.len();
+        if n == 0 {
+            return Err(CoordError::NoAxes);
+        }
+        if n > MAX_AXES {
+            return Err(CoordError::TooManyAxes);
+        }
+        if target.len() != n || limits.len() != n {
+            return Err(CoordError::LengthMismatch);
+        }
+        let mut s = [0i64; MAX_AXES];
+        let mut delta = [0i64; MAX_AXES];
+        for (k, (a, b)) in start.iter().zip(target).enumerate() {
+            let d = i128::from(*b) - i128::from(*a);
+            if d.unsigned_abs() > u128::from(MAX_COMPONENT) {
+                return Err(CoordError::TooLong);
+            }
+            if let (Some(sk), Some(dk)) = (s.get_mut(k), delta.get_mut(k)) {
+                *sk = *a;
+                // |d| ≤ 2³²: fits.
+                *dk = d as i64;
+            }
+        }
+        let deltas = delta.get(..n).unwrap_or(&[]);
+        let length = deltas.iter().map(|d| d.unsigned_abs()).max().unwrap_or(0);
+        let mut profile = Profile::new(tick_us, path_limits(deltas, limits, path));
+        // length ≤ 2³²: fits i64.
+        profile.move_to(length as i64);
+        Ok(Line {
+            n,
+            start: s,
+            delta,
+            length: length as i64,
+            path: profile,
+        })
+    }
+
+    /// Axes in the move.
+    pub fn len(&self) -> usize {
+        self.n
+    }
+
+    /// Never true: a line has at least one axis.
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+
+    /// The limits the shared profile runs with (module doc).
+    pub fn path_limits(&self) -> Limits {
+        self.path.limits()
+    }
+
+    /// Advance one tick.
+    pub fn tick(&mut self) {
+        self.path.tick();
+    }
+
+    /// Every axis on its target, at rest.
+    pub fn is_done(&self) -> bool {
+        self.path.is_settled()
+    }
+
+    /// The path parameter `s`, 2⁻³³ steps of the farthest axis.
+    pub fn path_fine(&self) -> i128 {
+        self.path.position_fine()
+    }
+
+    /// Axis `k`'s position, 2⁻³³ steps, exact but for the division by `L`
+    /// (rounded toward zero: under 2⁻³³ steps). `None` past the last axis.
+    pub fn position_fine(&self, k: usize) -> Option<i128> {
+        if k >= self.n {
+            return None;
+        }
+        let a = i128::from(*self.start.get(k)?) << POS_FRAC;
+        if self.length == 0 {
+            return Some(a);
+        }
+        let d = i128::from(*self.delta.get(k)?);
+        Some(a + d * self.path.position_fine() / i128::from(self.length))
+    }
+
+    /// Axis `k`'s position, nearest step (halves away from zero).
+    pub fn position(&self, k: usize) -> Option<i64> {
+        let f = self.position_fine(k)?;
+        let half = 1i128 << (POS_FRAC - 1);
+        let p = if f >= 0 {
+            (f + half) >> POS_FRAC
+        } else {
+            -((-f + half) >> POS_FRAC)
+        };
+        i64::try_from(p).ok()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const LIM: Limits = Limits {
+        max_speed: 10_000,
+        acc: 50_000,
+        dec: 50_000,
+    };
+    const FAST: Limits = Limits {
+        max_speed: u32::MAX,
+        acc: u32::MAX,
+        dec: u32::MAX,
+    };
+
+    fn run(line: &mut Line, cap: u32) -> u32 {
+        for t in 0..cap {
+            if line.is_done() {
+                return t;
+            }
+            line.tick();
+        }
+        panic!("not done in {cap} ticks");
+    }
+
+    #[test]
+    fn every_axis_lands_on_its_target_in_the_same_tick() {
+        let mut line = Line::new(1000, &[0, 100, -5], &[3000, -400, -5], &[LIM; 3], FAST).unwrap();
+        run(&mut line, 10_000);
+        assert_eq!(
+            (line.position(0), line.position(1), line.position(2)),
+            (Some(3000), Some(-400), Some(-5))
+        );
+    }
+
+    #[test]
+    fn the_slowest_axis_for_its_share_sets_the_path_speed() {
+        // Axis 1 moves half as far as axis 0 at a quarter of its speed
+        // limit: the path (axis 0's steps/s) may go at 2 × 2 500 = 5 000.
+        let slow = Limits {
+            max_speed: 2_500,
+            ..LIM
+        };
+        let line = Line::new(1000, &[0, 0], &[2000, 1000], &[LIM, slow], FAST).unwrap();
+        assert_eq!(line.path_limits().max_speed, 5_000);
+        assert_eq!(line.path_limits().acc, 50_000);
+    }
+
+    #[test]
+    fn the_requested_path_speed_caps_the_axes_limits() {
+        let path = Limits {
+            max_speed: 700,
+            acc: 900,
+            dec: 800,
+        };
+        let line = Line::new(1000, &[0, 0], &[2000, 1000], &[LIM; 2], path).unwrap();
+        assert_eq!(line.path_limits(), path);
+    }
+
+    #[test]
+    fn a_move_of_zero_length_is_done_at_once() {
+        let line = Line::new(1000, &[7, -3], &[7, -3], &[LIM; 2], FAST).unwrap();
+        assert!(line.is_done());
+        assert_eq!(line.position(1), Some(-3));
+    }
+
+    #[test]
+    fn bad_groups_are_refused() {
+        assert_eq!(
+            Line::new(1000, &[], &[], &[], FAST),
+            Err(CoordError::NoAxes)
+        );
+        assert_eq!(
+            Line::new(1000, &[0; 9], &[1; 9], &[LIM; 9], FAST),
+            Err(CoordError::TooManyAxes)
+        );
+        assert_eq!(
+            Line::new(1000, &[0, 0], &[1], &[LIM; 2], FAST),
+            Err(CoordError::LengthMismatch)
+        );
+        assert_eq!(
+            Line::new(1000, &[i64::MIN], &[i64::MAX], &[LIM], FAST),
+            Err(CoordError::TooLong)
+        );
+        assert_eq!(line_of(-(1 << 32)).map(|l| l.len()), Ok(1));
+        assert_eq!(line_of(-(1 << 32) - 1), Err(CoordError::TooLong));
+    }
+
+    fn line_of(d: i64) -> Result<Line, CoordError> {
+        Line::new(1000, &[0], &[d], &[LIM], FAST)
+    }
+
+    #[test]
+    fn past_the_last_axis_there_is_no_position() {
+        let line = Line::new(1000, &[0], &[10], &[LIM], FAST).unwrap();
+        assert_eq!(line.position(1), None);
+    }
+}

@@ -1,0 +1,134 @@
+//! Property tests of the coordinated line (`motion::coord`), with an oracle
+//! of their own: every check below is made from the axes' reported
+//! positions only, never from the line's path parameter or its limits.
+//!
+//! For random groups (1–8 axes, zero, tiny and > 2²¹-step components,
+//! mixed limits, 1, 2 and 5 kHz ticks), at every tick:
+//! * every axis is within one step of the straight line (taken through the
+//!   farthest-travelling axis's own position);
+//! * no axis's speed or acceleration, measured from its positions, exceeds
+//!   its own limits;
+//!
+//! and every moving axis reaches its target in the same tick, exactly.
+
+#![allow(clippy::indexing_slicing, clippy::arithmetic_side_effects)]
+#![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
+
+use bridge_logic::motion::coord::Line;
+use bridge_logic::motion::Limits;
+use proptest::prelude::*;
+
+/// 2⁻³³ steps per step (the positions' fine unit).
+const FINE: i128 = 1 << 33;
+
+/// A component: mostly zero, tiny or beyond 2²¹ steps.
+fn component() -> impl Strategy<Value = i64> {
+    prop_oneof![
+        Just(0i64),
+        -10i64..=10,
+        -50_000i64..=50_000,
+        (1i64 << 21)..(1i64 << 23),
+        -(1i64 << 23)..-(1i64 << 21),
+    ]
+}
+
+/// Limits that keep a move of 2²³ steps under a minute of ticks.
+fn limits() -> impl Strategy<Value = Limits> {
+    (200_000u32..4_000_000, 1u32..100, 1u32..100).prop_map(|(v, a, d)| Limits {
+        max_speed: v,
+        acc: v.saturating_mul(a) / 4,
+        dec: v.saturating_mul(d) / 4,
+    })
+}
+
+fn group() -> impl Strategy<Value = Vec<(i64, i64, Limits)>> {
+    prop::collection::vec((-(1i64 << 30)..(1i64 << 30), component(), limits()), 1..=8)
+}
+
+/// The path limits asked for: none, or a real cap.
+fn path() -> impl Strategy<Value = Limits> {
+    prop_oneof![
+        Just(Limits {
+            max_speed: u32::MAX,
+            acc: u32::MAX,
+            dec: u32::MAX
+        }),
+        limits(),
+    ]
+}
+
+fn tick_us() -> impl Strategy<Value = u32> {
+    prop_oneof![Just(1000u32), Just(500), Just(200)]
+}
+
+/// `|x| · scale ≤ bound · FINE + slack · scale`, in exact integers.
+fn within(x: i128, scale: i128, bound: i128, slack: i128) -> bool {
+    x.abs() * scale <= bound * FINE + slack * scale
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 48, ..ProptestConfig::default() })]
+
+    #[test]
+    fn a_coordinated_line_stays_on_the_line_within_every_axis_s_limits_and_arrives_in_one_tick(
+        axes in group(),
+        path in path(),
+        tick in tick_us(),
+    ) {
+        let start: Vec<i64> = axes.iter().map(|a| a.0).collect();
+        let target: Vec<i64> = axes.iter().map(|a| a.0 + a.1).collect();
+        let limits: Vec<Limits> = axes.iter().map(|a| a.2).collect();
+        let n = axes.len();
+        let mut line = Line::new(tick, &start, &target, &limits, path).unwrap();
+        let d: Vec<i128> = axes.iter().map(|a| i128::from(a.1)).collect();
+        let length = d.iter().map(|x| x.abs()).max().unwrap();
+        let far = d.iter().position(|x| x.abs() == length).unwrap();
+        let t = i128::from(tick);
+        let fine = |line: &Line| (0..n).map(|k| line.position_fine(k).unwrap()).collect::<Vec<_>>();
+        let mut prev = fine(&line);
+        let mut prev_step: Vec<i128> = vec![0; n];
+        let mut arrived: Vec<Option<u32>> = vec![None; n];
+        for tick_no in 1..=120_000u32 {
+            if line.is_done() {
+                break;
+            }
+            line.tick();
+            let now = fine(&line);
+            let p: Vec<i128> = (0..n).map(|k| i128::from(line.position(k).unwrap())).collect();
+            for k in 0..n {
+                let a = i128::from(start[k]);
+                // On the line through the farthest axis's own position.
+                let off = (p[k] - a) * d[far] - d[k] * (p[far] - i128::from(start[far]));
+                prop_assert!(off.abs() <= length.max(1), "axis {k} off the line at tick {tick_no}");
+                // Speed and acceleration from positions (2⁻³³ steps per tick):
+                // v ≤ vmax · tick · 2³³ / 10⁶, Δv ≤ max(acc, dec) · tick² · 2³³ / 10¹²,
+                // with a few 2⁻³³ of truncation and the one-quantum minimum.
+                let step = now[k] - prev[k];
+                let lim = limits[k];
+                prop_assert!(
+                    within(step, 1_000_000, i128::from(lim.max_speed) * t, 2),
+                    "axis {k} too fast at tick {tick_no}: {step}"
+                );
+                let acc = i128::from(lim.acc.max(lim.dec));
+                prop_assert!(
+                    within(step - prev_step[k], 1_000_000_000_000, acc * t * t, 8),
+                    "axis {k} accelerates too hard at tick {tick_no}"
+                );
+                prev_step[k] = step;
+                // Direction: never backwards along the line.
+                prop_assert!(step * d[k] >= 0, "axis {k} moved backwards");
+                if arrived[k].is_none() && d[k] != 0 && now[k] == i128::from(target[k]) * FINE {
+                    arrived[k] = Some(tick_no);
+                }
+            }
+            prev = now;
+        }
+        prop_assert!(line.is_done(), "not done");
+        for (k, want) in target.iter().enumerate() {
+            prop_assert_eq!(line.position(k), Some(*want));
+        }
+        let ticks: Vec<u32> = arrived.iter().flatten().copied().collect();
+        prop_assert!(ticks.windows(2).all(|w| w[0] == w[1]), "arrivals {ticks:?}");
+        prop_assert_eq!(ticks.len(), d.iter().filter(|x| **x != 0).count());
+    }
+}
