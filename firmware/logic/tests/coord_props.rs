@@ -14,7 +14,7 @@
 #![allow(clippy::indexing_slicing, clippy::arithmetic_side_effects)]
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-use bridge_logic::motion::coord::Line;
+use bridge_logic::motion::coord::{junction_speed, Line};
 use bridge_logic::motion::Limits;
 use proptest::prelude::*;
 
@@ -130,5 +130,40 @@ proptest! {
         let ticks: Vec<u32> = arrived.iter().flatten().copied().collect();
         prop_assert!(ticks.windows(2).all(|w| w[0] == w[1]), "arrivals {ticks:?}");
         prop_assert_eq!(ticks.len(), d.iter().filter(|x| **x != 0).count());
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
+
+    #[test]
+    fn the_junction_speed_is_the_highest_at_which_no_axis_jumps_more_than_one_tick_of_acceleration(
+        segs in prop::collection::vec((component(), component(), limits()), 1..=8),
+        tick in tick_us(),
+    ) {
+        let a: Vec<i64> = segs.iter().map(|s| s.0).collect();
+        let b: Vec<i64> = segs.iter().map(|s| s.1).collect();
+        let lim: Vec<Limits> = segs.iter().map(|s| s.2).collect();
+        let v = junction_speed(&a, &b, &lim, tick);
+        let la = a.iter().map(|x| i128::from(x.unsigned_abs())).max().unwrap();
+        let lb = b.iter().map(|x| i128::from(x.unsigned_abs())).max().unwrap();
+        if la == 0 || lb == 0 {
+            prop_assert_eq!(v, 0);
+            return Ok(());
+        }
+        // Axis i's jump at speed s, in steps/s, is s·|aᵢ/la − bᵢ/lb|; one
+        // tick of acceleration is min(acc, dec)·tick/10⁶. Exact, scaled by
+        // la·lb·10⁶.
+        let fits = |s: i128| {
+            (0..a.len()).all(|i| {
+                let jump = (i128::from(a[i]) * lb - i128::from(b[i]) * la).abs();
+                let allowed = i128::from(lim[i].acc.max(1).min(lim[i].dec.max(1)));
+                s * jump * 1_000_000 <= allowed * i128::from(tick) * la * lb
+            })
+        };
+        prop_assert!(fits(i128::from(v)), "v = {v} makes an axis jump too far");
+        if v < u32::MAX {
+            prop_assert!(!fits(i128::from(v) + 1), "v = {v} is not the highest");
+        }
     }
 }

@@ -91,6 +91,52 @@ pub fn path_limits(deltas: &[i64], limits: &[Limits], path: Limits) -> Limits {
     out
 }
 
+/// The highest speed through the junction of two segments with components
+/// `d_in` then `d_out` (the same axes, each segment's path speed in steps/s
+/// of its farthest axis, as for a [`Line`]) at which no axis's velocity
+/// jumps by more than the smaller of its acceleration and deceleration
+/// allows in one tick of `tick_us`:
+/// with `u = d_in / L_in`, `w = d_out / L_out` and the speed `v` on both
+/// sides, axis `i` jumps by `v · |uᵢ − wᵢ|`, so
+/// `v ≤ min_i accᵢ · tick / |uᵢ − wᵢ|` (rounded down). A chip sees one
+/// velocity per tick: a jump no larger than one tick's acceleration is what
+/// it does between any two ticks anyway. `u32::MAX` for a straight
+/// continuation (the segments' own limits cap it), 0 for mismatched or
+/// empty groups. (The rule of the path queue to come; DECISIONS.md.)
+pub fn junction_speed(d_in: &[i64], d_out: &[i64], limits: &[Limits], tick_us: u32) -> u32 {
+    let n = d_in.len();
+    if n == 0 || d_out.len() != n || limits.len() != n {
+        return 0;
+    }
+    let l_in = u128::from(d_in.iter().map(|d| d.unsigned_abs()).max().unwrap_or(0));
+    let l_out = u128::from(d_out.iter().map(|d| d.unsigned_abs()).max().unwrap_or(0));
+    if l_in == 0
+        || l_out == 0
+        || l_in > u128::from(MAX_COMPONENT)
+        || l_out > u128::from(MAX_COMPONENT)
+    {
+        // A zero-length segment is a stop; an over-long one is refused.
+        return 0;
+    }
+    let mut v = u32::MAX;
+    for ((a, b), lim) in d_in.iter().zip(d_out).zip(limits) {
+        // |uᵢ − wᵢ| = |aᵢ·L_out − bᵢ·L_in| / (L_in·L_out); both terms < 2⁶⁵.
+        let x = i128::from(*a) * l_out as i128 - i128::from(*b) * l_in as i128;
+        let jump = x.unsigned_abs();
+        if jump == 0 {
+            continue;
+        }
+        // acc · tick · L_in · L_out / (10⁶ · jump): < 2³² · 2³² · 2⁶⁴ = 2¹²⁸.
+        let num = u128::from(lim.acc.max(1).min(lim.dec.max(1)))
+            .saturating_mul(u128::from(tick_us))
+            .saturating_mul(l_in)
+            .saturating_mul(l_out);
+        let q = num / jump.saturating_mul(1_000_000);
+        v = v.min(u32::try_from(q).unwrap_or(u32::MAX));
+    }
+    v
+}
+
 impl Line {
     /// Plan the move of the axes at `start` to `target` (logical steps),
     /// each within its `limits`, at most at the `path` limits (in steps of
@@ -286,6 +332,33 @@ mod tests {
 
     fn line_of(d: i64) -> Result<Line, CoordError> {
         Line::new(1000, &[0], &[d], &[LIM], FAST)
+    }
+
+    #[test]
+    fn a_straight_continuation_is_no_junction() {
+        assert_eq!(
+            junction_speed(&[100, 50], &[40, 20], &[LIM; 2], 1000),
+            u32::MAX
+        );
+    }
+
+    #[test]
+    fn a_right_angle_allows_one_tick_of_the_smaller_acceleration() {
+        // X then Y: each axis's velocity jumps by v; 50 000 steps/s² · 1 ms.
+        let slow = Limits { acc: 20_000, ..LIM };
+        assert_eq!(junction_speed(&[100, 0], &[0, 300], &[LIM, slow], 1000), 20);
+    }
+
+    #[test]
+    fn a_reversal_allows_half_a_tick_of_acceleration() {
+        assert_eq!(junction_speed(&[100], &[-7], &[LIM], 1000), 25);
+    }
+
+    #[test]
+    fn a_zero_length_or_mismatched_segment_is_a_stop() {
+        assert_eq!(junction_speed(&[0, 0], &[5, 5], &[LIM; 2], 1000), 0);
+        assert_eq!(junction_speed(&[1, 0], &[5], &[LIM; 2], 1000), 0);
+        assert_eq!(junction_speed(&[], &[], &[], 1000), 0);
     }
 
     #[test]
