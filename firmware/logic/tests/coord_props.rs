@@ -14,7 +14,7 @@
 #![allow(clippy::indexing_slicing, clippy::arithmetic_side_effects)]
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-use bridge_logic::motion::coord::{junction_speed, Line};
+use bridge_logic::motion::coord::{junction_speed, plan_speeds, Line, Segment};
 use bridge_logic::motion::Limits;
 use proptest::prelude::*;
 
@@ -88,7 +88,13 @@ proptest! {
         let mut prev = fine(&line);
         let mut prev_step: Vec<i128> = vec![0; n];
         let mut arrived: Vec<Option<u32>> = vec![None; n];
-        for tick_no in 1..=120_000u32 {
+        // Ticks enough to finish (a bound, not a check): the path's
+        // distance at its speed plus a ramp each way, twice over.
+        let pl = line.path_limits();
+        let us = length.unsigned_abs() as u64 * 1_000_000 / u64::from(pl.max_speed)
+            + 2 * u64::from(pl.max_speed) * 1_000_000 / u64::from(pl.acc.min(pl.dec).max(1));
+        let cap = 2 * us / u64::from(tick) + 100;
+        for tick_no in 1..=u32::try_from(cap).unwrap() {
             if line.is_done() {
                 break;
             }
@@ -166,4 +172,90 @@ proptest! {
             prop_assert!(!fits(i128::from(v) + 1), "v = {v} is not the highest");
         }
     }
+}
+
+fn segment() -> impl Strategy<Value = Segment> {
+    (
+        prop_oneof![1u64..100, 100u64..100_000, (1u64 << 21)..(1u64 << 32)],
+        limits(),
+        prop_oneof![Just(u32::MAX), 0u32..5_000_000],
+    )
+        .prop_map(|(length, limits, junction)| Segment {
+            length,
+            limits,
+            junction,
+        })
+}
+
+/// v² ≤ u² + 2·rate·length (continuous kinematics, exact).
+fn reachable(u: u32, v: u32, rate: u32, length: u64) -> bool {
+    let (u, v) = (u128::from(u), u128::from(v));
+    v * v <= u * u + 2 * u128::from(rate.max(1)) * u128::from(length)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
+
+    #[test]
+    fn the_look_ahead_stops_on_the_last_waypoint_within_every_limit_and_as_fast_as_they_allow(
+        segs in prop::collection::vec(segment(), 1..=16),
+        start in prop_oneof![Just(0u32), 0u32..4_000, 0u32..4_000_000],
+    ) {
+        let n = segs.len();
+        let mut out = [0u32; 17];
+        let got = plan_speeds(start, &segs, &mut out);
+        // Independent of the planner: the start is possible if the path can
+        // brake from it to rest at every waypoint's cap, which the backward
+        // recursion below gives.
+        let mut cap = vec![0u32; n + 1];
+        for k in (0..n).rev() {
+            let mut c = isqrt(u128::from(cap[k + 1]).pow(2) + 2 * u128::from(segs[k].limits.dec.max(1)) * u128::from(segs[k].length));
+            c = c.min(u128::from(segs[k].limits.max_speed.max(1)));
+            if k > 0 {
+                c = c.min(u128::from(segs[k].junction)).min(u128::from(segs[k - 1].limits.max_speed.max(1)));
+            }
+            cap[k] = u32::try_from(c).unwrap_or(u32::MAX);
+        }
+        if start > cap[0] {
+            prop_assert!(got.is_err());
+            return Ok(());
+        }
+        prop_assert_eq!(got, Ok(n + 1));
+        let v = &out[..=n];
+        prop_assert_eq!(v[0], start);
+        prop_assert_eq!(v[n], 0);
+        for k in 0..n {
+            let s = segs[k];
+            prop_assert!(reachable(v[k], v[k + 1], s.limits.acc, s.length), "segment {k} cannot reach its exit");
+            prop_assert!(reachable(v[k + 1], v[k], s.limits.dec, s.length), "segment {k} cannot brake to its exit");
+            prop_assert!(v[k] <= s.limits.max_speed.max(1) && v[k + 1] <= s.limits.max_speed.max(1));
+            if k > 0 {
+                prop_assert!(v[k] <= s.junction, "junction {k} taken too fast");
+            }
+        }
+        // As fast as allowed: every interior waypoint is at a cap, or one
+        // more step/s would break braking to the next or reaching from the
+        // one before.
+        for k in 1..n {
+            let up = v[k] + 1;
+            let capped = v[k] == cap[k];
+            let forward = !reachable(v[k - 1], up, segs[k - 1].limits.acc, segs[k - 1].length);
+            let backward = !reachable(v[k + 1], up, segs[k].limits.dec, segs[k].length);
+            prop_assert!(capped || forward || backward, "waypoint {k} could go faster");
+        }
+    }
+}
+
+/// ⌊√x⌋ by bisection (the oracle's own).
+fn isqrt(x: u128) -> u128 {
+    let (mut lo, mut hi) = (0u128, 1u128 << 64);
+    while hi - lo > 1 {
+        let mid = lo + (hi - lo) / 2;
+        if mid.checked_mul(mid).is_some_and(|m| m <= x) {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    lo
 }

@@ -52,6 +52,9 @@ pub enum CoordError {
     LengthMismatch,
     /// A component longer than [`MAX_COMPONENT`] steps.
     TooLong,
+    /// The path cannot stop on its last waypoint from the speed it has now
+    /// (a look-ahead asked too late); the caller stops it as it can.
+    CannotStop,
 }
 
 /// A coordinated move in progress (module doc).
@@ -135,6 +138,100 @@ pub fn junction_speed(d_in: &[i64], d_out: &[i64], limits: &[Limits], tick_us: u
         v = v.min(u32::try_from(q).unwrap_or(u32::MAX));
     }
     v
+}
+
+/// One segment of a path as the look-ahead sees it: its length (steps of
+/// its farthest axis), its path limits, and the highest speed through the
+/// junction at its start ([`junction_speed`] with the segment before).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub struct Segment {
+    pub length: u64,
+    pub limits: Limits,
+    pub junction: u32,
+}
+
+/// ⌊√x⌋ (Newton's method from above; exact).
+fn isqrt(x: u128) -> u128 {
+    if x < 2 {
+        return x;
+    }
+    let mut r = 1u128 << (128 - x.leading_zeros()).div_ceil(2);
+    loop {
+        let next = (r + x / r) / 2;
+        if next >= r {
+            return r;
+        }
+        r = next;
+    }
+}
+
+/// The speed reachable over `length` steps from `v` at `rate` steps/s²
+/// (up or down, continuous kinematics: `√(v² + 2·rate·length)`), rounded
+/// down and at most `u32::MAX`.
+fn over(v: u32, rate: u32, length: u64) -> u32 {
+    let v2 = u128::from(v) * u128::from(v);
+    let s = 2 * u128::from(rate.max(1)) * u128::from(length);
+    u32::try_from(isqrt(v2 + s)).unwrap_or(u32::MAX)
+}
+
+/// The look-ahead: the speed at every waypoint of the queued `segments`,
+/// starting at `speed` (the path's speed now, at the start of the first
+/// segment), such that the path always stops on its last waypoint. Writes
+/// `segments.len() + 1` speeds to `out` (the first is `speed`, the last 0)
+/// and returns how many. Each is the highest that (backward) still brakes to
+/// every later waypoint's speed with each segment's deceleration and
+/// (forward) is reached from the one before with its acceleration, and no
+/// waypoint is faster than its junction or either segment's max speed.
+/// Continuous kinematics, as grbl's planner; the tick-exact execution is the
+/// profile's. [`CoordError::CannotStop`] when `speed` is above what the
+/// first segment can still brake from, [`CoordError::TooManyAxes`] when
+/// `out` is too short.
+pub fn plan_speeds(speed: u32, segments: &[Segment], out: &mut [u32]) -> Result<usize, CoordError> {
+    let n = segments.len();
+    let Some(speeds) = out.get_mut(..=n) else {
+        return Err(CoordError::TooManyAxes);
+    };
+    // Backward: the highest speed at each waypoint that still stops at the end.
+    let mut later = 0u32;
+    if let Some(last) = speeds.last_mut() {
+        *last = 0;
+    }
+    for k in (0..n).rev() {
+        let (Some(seg), Some(slot)) = (segments.get(k), speeds.get_mut(k)) else {
+            break;
+        };
+        let mut cap = over(later, seg.limits.dec, seg.length).min(seg.limits.max_speed.max(1));
+        if k > 0 {
+            let before = segments
+                .get(k - 1)
+                .map_or(u32::MAX, |b| b.limits.max_speed.max(1));
+            cap = cap.min(seg.junction).min(before);
+        }
+        *slot = cap;
+        later = cap;
+    }
+    // Forward: from `speed`, as fast as each segment's acceleration allows.
+    let first = speeds.first().copied().unwrap_or(0);
+    if n > 0 && speed > first {
+        return Err(CoordError::CannotStop);
+    }
+    let mut now = speed;
+    for k in 0..=n {
+        let Some(slot) = speeds.get_mut(k) else {
+            break;
+        };
+        if k == 0 {
+            *slot = speed;
+        } else {
+            let reach = segments
+                .get(k - 1)
+                .map_or(0, |s| over(now, s.limits.acc, s.length));
+            *slot = (*slot).min(reach);
+        }
+        now = *slot;
+    }
+    Ok(n + 1)
 }
 
 impl Line {
@@ -359,6 +456,74 @@ mod tests {
         assert_eq!(junction_speed(&[0, 0], &[5, 5], &[LIM; 2], 1000), 0);
         assert_eq!(junction_speed(&[1, 0], &[5], &[LIM; 2], 1000), 0);
         assert_eq!(junction_speed(&[], &[], &[], 1000), 0);
+    }
+
+    #[test]
+    fn integer_square_roots_are_exact() {
+        for x in [
+            0u128,
+            1,
+            2,
+            3,
+            4,
+            15,
+            16,
+            17,
+            1 << 64,
+            (1 << 66) - 1,
+            u128::MAX,
+        ] {
+            let r = isqrt(x);
+            assert!(
+                r * r <= x && (r + 1).checked_mul(r + 1).is_none_or(|s| s > x),
+                "{x}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_single_segment_path_starts_at_its_speed_and_ends_at_rest() {
+        let seg = Segment {
+            length: 1000,
+            limits: LIM,
+            junction: u32::MAX,
+        };
+        let mut out = [7u32; 4];
+        assert_eq!(plan_speeds(0, &[seg], &mut out), Ok(2));
+        assert_eq!(&out[..2], &[0, 0]);
+    }
+
+    #[test]
+    fn a_right_angle_slows_the_path_to_its_junction_speed() {
+        let a = Segment {
+            length: 100_000,
+            limits: LIM,
+            junction: u32::MAX,
+        };
+        let b = Segment { junction: 50, ..a };
+        let mut out = [0u32; 3];
+        plan_speeds(0, &[a, b], &mut out).unwrap();
+        assert_eq!(out, [0, 50, 0]);
+    }
+
+    #[test]
+    fn a_path_that_cannot_stop_in_time_is_refused() {
+        // 10 steps at 50 000 steps/s² stop from at most √(2·50 000·10) = 1 000.
+        let seg = Segment {
+            length: 10,
+            limits: LIM,
+            junction: u32::MAX,
+        };
+        let mut out = [0u32; 2];
+        assert_eq!(plan_speeds(1000, &[seg], &mut out), Ok(2));
+        assert_eq!(
+            plan_speeds(1001, &[seg], &mut out),
+            Err(CoordError::CannotStop)
+        );
+        assert_eq!(
+            plan_speeds(0, &[seg], &mut [0u32; 1]),
+            Err(CoordError::TooManyAxes)
+        );
     }
 
     #[test]
