@@ -8,21 +8,6 @@ use stepbridge_sim::{Lines, ShiftChain};
 
 /// Run `plan` through `chain`: the bits the master samples, in wire order.
 pub fn transfer(chain: &mut ShiftChain, plan: &TransferPlan) -> WireBits {
-    let mut rx = WireBits::ZERO;
-    let mut k = 0;
-    let halves = wire(plan).map(|h| {
-        (
-            Lines {
-                cs: h.cs,
-                sck: h.sck,
-                mosi: h.mosi,
-            },
-            h.sample,
-        )
-    });
-    chain.clock_transfer(halves, |miso| {
-        rx.set(k, miso);
-        k += 1;
-    });
-    rx
+    let halves = wire(plan).map(|h| (Lines::new(h.cs, h.sck, h.mosi), h.sample));
+    WireBits::from_words(chain.clock_transfer(halves))
 }

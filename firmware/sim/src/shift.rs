@@ -76,6 +76,10 @@ impl Lines {
         sck: false,
         mosi: false,
     };
+
+    pub const fn new(cs: bool, sck: bool, mosi: bool) -> Lines {
+        Lines { cs, sck, mosi }
+    }
 }
 
 /// `m` 74HC165s and `p` 74HC595s wired as the module doc shows.
@@ -185,19 +189,27 @@ impl ShiftChain {
     }
 
     /// Clock a whole transfer: each half period's lines with whether the
-    /// master samples MISO at its end; `sampled` gets the sampled levels in
-    /// wire order.
-    pub fn clock_transfer(
+    /// master samples MISO at its end. The sampled levels in wire order,
+    /// most significant bit first in each 16-bit word (sample k is bit
+    /// `15 − k % 16` of word `k / 16`, the I/O extension's receive layout);
+    /// samples past `W` words are dropped.
+    pub fn clock_transfer<const W: usize>(
         &mut self,
         halves: impl IntoIterator<Item = (Lines, bool)>,
-        mut sampled: impl FnMut(bool),
-    ) {
+    ) -> [u16; W] {
+        let mut words = [0u16; W];
+        let mut k = 0usize;
         for (lines, sample) in halves {
             let miso = self.step(lines);
             if sample {
-                sampled(miso);
+                if let Some(w) = words.get_mut(k / 16) {
+                    // 15 ^ i = 15 − i for i < 16.
+                    *w |= u16::from(miso) << (15 ^ (k % 16) as u32);
+                }
+                k = k.saturating_add(1);
             }
         }
+        words
     }
 
     /// Move the lines to `h`'s levels (CS first, then SCK, each edge seeing

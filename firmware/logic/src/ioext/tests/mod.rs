@@ -91,23 +91,8 @@ impl Rig {
 /// Clock `plan`'s wire ([`wire()`]) through the simulated chips, half
 /// period by half period: the bits the master samples.
 pub(super) fn run(chain: &mut ShiftChain, plan: &TransferPlan) -> WireBits {
-    let mut rx = WireBits::ZERO;
-    let mut k = 0;
-    let halves = wire(plan).map(|h| {
-        (
-            Lines {
-                cs: h.cs,
-                sck: h.sck,
-                mosi: h.mosi,
-            },
-            h.sample,
-        )
-    });
-    chain.clock_transfer(halves, |miso| {
-        rx.set(k, miso);
-        k += 1;
-    });
-    rx
+    let halves = wire(plan).map(|h| (Lines::new(h.cs, h.sck, h.mosi), h.sample));
+    WireBits::from_words(chain.clock_transfer(halves))
 }
 
 /// A bit pattern that tells positions apart.
