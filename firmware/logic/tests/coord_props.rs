@@ -14,7 +14,7 @@
 #![allow(clippy::indexing_slicing, clippy::arithmetic_side_effects)]
 #![allow(clippy::unwrap_used, clippy::expect_used, clippy::panic)]
 
-use bridge_logic::motion::coord::{junction_speed, plan_speeds, Line, Segment};
+use bridge_logic::motion::coord::{junction_speed, plan_speeds, CoordError, Line, Segment};
 use bridge_logic::motion::Limits;
 use proptest::prelude::*;
 
@@ -150,7 +150,7 @@ proptest! {
         let a: Vec<i64> = segs.iter().map(|s| s.0).collect();
         let b: Vec<i64> = segs.iter().map(|s| s.1).collect();
         let lim: Vec<Limits> = segs.iter().map(|s| s.2).collect();
-        let v = junction_speed(&a, &b, &lim, tick);
+        let v = junction_speed(&a, &b, &lim, tick).unwrap();
         let la = a.iter().map(|x| i128::from(x.unsigned_abs())).max().unwrap();
         let lb = b.iter().map(|x| i128::from(x.unsigned_abs())).max().unwrap();
         if la == 0 || lb == 0 {
@@ -204,23 +204,37 @@ proptest! {
         let n = segs.len();
         let mut out = [0u32; 17];
         let got = plan_speeds(start, &segs, &mut out);
-        // Independent of the planner: the start is possible if the path can
-        // brake from it to rest at every waypoint's cap, which the backward
-        // recursion below gives.
-        let mut cap = vec![0u32; n + 1];
-        for k in (0..n).rev() {
-            let mut c = isqrt(u128::from(cap[k + 1]).pow(2) + 2 * u128::from(segs[k].limits.dec.max(1)) * u128::from(segs[k].length));
-            c = c.min(u128::from(segs[k].limits.max_speed.max(1)));
-            if k > 0 {
-                c = c.min(u128::from(segs[k].junction)).min(u128::from(segs[k - 1].limits.max_speed.max(1)));
+        // Independent of the planner's backward pass: braking as hard as
+        // every segment allows from `start` gives the lowest speed the path
+        // can have at each waypoint; the start is possible iff that never
+        // exceeds a waypoint's cap (its junction and both segments' max
+        // speeds, 0 at the end) nor the first segment's max speed.
+        let possible = |start: u32| {
+            let mut u2 = u128::from(start).pow(2);
+            if start > segs[0].limits.max_speed.max(1) {
+                return false;
             }
-            cap[k] = u32::try_from(c).unwrap_or(u32::MAX);
-        }
-        if start > cap[0] {
-            prop_assert!(got.is_err());
+            for k in 0..n {
+                let s = segs[k];
+                u2 = u2.saturating_sub(2 * u128::from(s.limits.dec.max(1)) * u128::from(s.length));
+                let cap = match segs.get(k + 1) {
+                    Some(next) => next.junction.min(next.limits.max_speed.max(1)).min(s.limits.max_speed.max(1)),
+                    None => 0,
+                };
+                if u2 > u128::from(cap).pow(2) {
+                    return false;
+                }
+            }
+            true
+        };
+        if got.is_err() {
+            // Refused: impossible, or within the planner's rounding (under
+            // 1 step/s per segment) of impossible.
+            prop_assert_eq!(got, Err(CoordError::CannotStop));
+            prop_assert!(!possible(start.saturating_add(n as u32 + 1)), "a possible start refused");
             return Ok(());
         }
-        prop_assert_eq!(got, Ok(n + 1));
+        prop_assert!(possible(start));
         let v = &out[..=n];
         prop_assert_eq!(v[0], start);
         prop_assert_eq!(v[n], 0);
@@ -238,24 +252,10 @@ proptest! {
         // one before.
         for k in 1..n {
             let up = v[k] + 1;
-            let capped = v[k] == cap[k];
+            let capped = v[k] == segs[k].junction.min(segs[k].limits.max_speed.max(1)).min(segs[k - 1].limits.max_speed.max(1));
             let forward = !reachable(v[k - 1], up, segs[k - 1].limits.acc, segs[k - 1].length);
             let backward = !reachable(v[k + 1], up, segs[k].limits.dec, segs[k].length);
             prop_assert!(capped || forward || backward, "waypoint {k} could go faster");
         }
     }
-}
-
-/// ⌊√x⌋ by bisection (the oracle's own).
-fn isqrt(x: u128) -> u128 {
-    let (mut lo, mut hi) = (0u128, 1u128 << 64);
-    while hi - lo > 1 {
-        let mid = lo + (hi - lo) / 2;
-        if mid.checked_mul(mid).is_some_and(|m| m <= x) {
-            lo = mid;
-        } else {
-            hi = mid;
-        }
-    }
-    lo
 }

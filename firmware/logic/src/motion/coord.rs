@@ -25,22 +25,16 @@
 //!   profile's `i128` in 2⁻³³ steps; `|dᵢ| ≤ 2³²` keeps `dᵢ · s` below 2⁹⁸.
 //!   A longer component is refused ([`CoordError::TooLong`]).
 
-// Exact integer maths on bounded values: components ≤ 2³² steps (checked in
-// `Line::new`), so every product below fits its i128/u128.
-#![allow(clippy::arithmetic_side_effects)]
-
-use super::profile::{Limits, Profile};
+use super::profile::{round_fine, Limits, Profile, POS_FRAC};
+use crate::powerstep::chain::MAX_DEVICES;
 
 /// Axes in one coordinated move: a chain's most.
-pub const MAX_AXES: usize = 8;
+pub const MAX_AXES: usize = MAX_DEVICES;
 
 /// Longest component of a coordinated move, steps (2³²).
 pub const MAX_COMPONENT: u64 = 1 << 32;
 
-/// 2⁻³³ steps per step (the profile's position unit).
-const POS_FRAC: u32 = 33;
-
-/// Why a coordinated move was not planned.
+/// Why a coordinated move, a junction or a look-ahead was not planned.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum CoordError {
@@ -48,13 +42,37 @@ pub enum CoordError {
     NoAxes,
     /// More than [`MAX_AXES`] axes.
     TooManyAxes,
-    /// `start`, `target` and `limits` name different numbers of axes.
+    /// Two lists that name the axes have different lengths.
     LengthMismatch,
     /// A component longer than [`MAX_COMPONENT`] steps.
     TooLong,
     /// The path cannot stop on its last waypoint from the speed it has now
-    /// (a look-ahead asked too late); the caller stops it as it can.
+    /// (a look-ahead asked too late, or faster than the first segment's max
+    /// speed); the caller stops it as it can.
     CannotStop,
+    /// The output of [`plan_speeds`] holds fewer than `segments + 1` speeds.
+    OutputTooShort,
+}
+
+/// The distance of the axis that travels farthest, after the checks every
+/// group passes: 1..=[`MAX_AXES`] axes, `others` of the same length, no
+/// component over [`MAX_COMPONENT`].
+fn checked_length(deltas: &[i64], others: &[usize]) -> Result<u64, CoordError> {
+    let n = deltas.len();
+    if n == 0 {
+        return Err(CoordError::NoAxes);
+    }
+    if n > MAX_AXES {
+        return Err(CoordError::TooManyAxes);
+    }
+    if others.iter().any(|&m| m != n) {
+        return Err(CoordError::LengthMismatch);
+    }
+    let length = deltas.iter().map(|d| d.unsigned_abs()).max().unwrap_or(0);
+    if length > MAX_COMPONENT {
+        return Err(CoordError::TooLong);
+    }
+    Ok(length)
 }
 
 /// A coordinated move in progress (module doc).
@@ -69,6 +87,8 @@ pub struct Line {
 }
 
 /// `⌊limit · L / |d|⌋`, at most `u32::MAX` (the path limit axis `d` allows).
+// Components ≤ 2³² (checked_length): the product fits u128.
+#[allow(clippy::arithmetic_side_effects)]
 fn scaled(limit: u32, length: u64, d: u64) -> u32 {
     if d == 0 {
         return u32::MAX;
@@ -78,8 +98,7 @@ fn scaled(limit: u32, length: u64, d: u64) -> u32 {
 }
 
 /// The path's limits: `path` capped by every moving axis's scaled limits.
-pub fn path_limits(deltas: &[i64], limits: &[Limits], path: Limits) -> Limits {
-    let length = deltas.iter().map(|d| d.unsigned_abs()).max().unwrap_or(0);
+fn path_limits(deltas: &[i64], length: u64, limits: &[Limits], path: Limits) -> Limits {
     let mut out = Limits {
         max_speed: path.max_speed.max(1),
         acc: path.acc.max(1),
@@ -98,38 +117,35 @@ pub fn path_limits(deltas: &[i64], limits: &[Limits], path: Limits) -> Limits {
 /// `d_in` then `d_out` (the same axes, each segment's path speed in steps/s
 /// of its farthest axis, as for a [`Line`]) at which no axis's velocity
 /// jumps by more than the smaller of its acceleration and deceleration
-/// allows in one tick of `tick_us`:
-/// with `u = d_in / L_in`, `w = d_out / L_out` and the speed `v` on both
-/// sides, axis `i` jumps by `v · |uᵢ − wᵢ|`, so
-/// `v ≤ min_i accᵢ · tick / |uᵢ − wᵢ|` (rounded down). A chip sees one
-/// velocity per tick: a jump no larger than one tick's acceleration is what
-/// it does between any two ticks anyway. `u32::MAX` for a straight
-/// continuation (the segments' own limits cap it), 0 for mismatched or
-/// empty groups. (The rule of the path queue to come; DECISIONS.md.)
-pub fn junction_speed(d_in: &[i64], d_out: &[i64], limits: &[Limits], tick_us: u32) -> u32 {
-    let n = d_in.len();
-    if n == 0 || d_out.len() != n || limits.len() != n {
-        return 0;
-    }
-    let l_in = u128::from(d_in.iter().map(|d| d.unsigned_abs()).max().unwrap_or(0));
-    let l_out = u128::from(d_out.iter().map(|d| d.unsigned_abs()).max().unwrap_or(0));
-    if l_in == 0
-        || l_out == 0
-        || l_in > u128::from(MAX_COMPONENT)
-        || l_out > u128::from(MAX_COMPONENT)
-    {
-        // A zero-length segment is a stop; an over-long one is refused.
-        return 0;
+/// allows in one tick of `tick_us`: with `u = d_in / L_in`,
+/// `w = d_out / L_out` and the speed `v` on both sides, axis `i` jumps by
+/// `v · |uᵢ − wᵢ|`, so `v ≤ minᵢ accᵢ · tick / |uᵢ − wᵢ|` (rounded down). A
+/// chip sees one velocity per tick: a jump no larger than one tick's
+/// acceleration is what it does between any two ticks anyway. `u32::MAX`
+/// for a straight continuation (the segments' own limits cap it), 0 when
+/// either segment has no length (a stop). (The rule of the path queue to
+/// come; DECISIONS.md.)
+// Components ≤ 2³² (checked_length): |aᵢ·L_out − bᵢ·L_in| < 2⁶⁵, and the
+// numerator saturates.
+#[allow(clippy::arithmetic_side_effects)]
+pub fn junction_speed(
+    d_in: &[i64],
+    d_out: &[i64],
+    limits: &[Limits],
+    tick_us: u32,
+) -> Result<u32, CoordError> {
+    let l_in = u128::from(checked_length(d_in, &[d_out.len(), limits.len()])?);
+    let l_out = u128::from(checked_length(d_out, &[])?);
+    if l_in == 0 || l_out == 0 {
+        return Ok(0);
     }
     let mut v = u32::MAX;
     for ((a, b), lim) in d_in.iter().zip(d_out).zip(limits) {
-        // |uᵢ − wᵢ| = |aᵢ·L_out − bᵢ·L_in| / (L_in·L_out); both terms < 2⁶⁵.
         let x = i128::from(*a) * l_out as i128 - i128::from(*b) * l_in as i128;
         let jump = x.unsigned_abs();
         if jump == 0 {
             continue;
         }
-        // acc · tick · L_in · L_out / (10⁶ · jump): < 2³² · 2³² · 2⁶⁴ = 2¹²⁸.
         let num = u128::from(lim.acc.max(1).min(lim.dec.max(1)))
             .saturating_mul(u128::from(tick_us))
             .saturating_mul(l_in)
@@ -137,7 +153,7 @@ pub fn junction_speed(d_in: &[i64], d_out: &[i64], limits: &[Limits], tick_us: u
         let q = num / jump.saturating_mul(1_000_000);
         v = v.min(u32::try_from(q).unwrap_or(u32::MAX));
     }
-    v
+    Ok(v)
 }
 
 /// One segment of a path as the look-ahead sees it: its length (steps of
@@ -151,87 +167,61 @@ pub struct Segment {
     pub junction: u32,
 }
 
-/// ⌊√x⌋ (Newton's method from above; exact).
-fn isqrt(x: u128) -> u128 {
-    if x < 2 {
-        return x;
-    }
-    let mut r = 1u128 << (128 - x.leading_zeros()).div_ceil(2);
-    loop {
-        let next = (r + x / r) / 2;
-        if next >= r {
-            return r;
-        }
-        r = next;
-    }
-}
-
 /// The speed reachable over `length` steps from `v` at `rate` steps/s²
 /// (up or down, continuous kinematics: `√(v² + 2·rate·length)`), rounded
 /// down and at most `u32::MAX`.
+// Products of u32 and u64 values in u128: no overflow.
+#[allow(clippy::arithmetic_side_effects)]
 fn over(v: u32, rate: u32, length: u64) -> u32 {
     let v2 = u128::from(v) * u128::from(v);
-    let s = 2 * u128::from(rate.max(1)) * u128::from(length);
-    u32::try_from(isqrt(v2 + s)).unwrap_or(u32::MAX)
+    // rate < 2³², length < 2⁶⁴: below 2⁹⁷, and v² < 2⁶⁴.
+    let s = u128::from(rate.max(1)) * u128::from(length) * 2;
+    u32::try_from(v2.saturating_add(s).isqrt()).unwrap_or(u32::MAX)
 }
 
 /// The look-ahead: the speed at every waypoint of the queued `segments`,
 /// starting at `speed` (the path's speed now, at the start of the first
 /// segment), such that the path always stops on its last waypoint. Writes
-/// `segments.len() + 1` speeds to `out` (the first is `speed`, the last 0)
-/// and returns how many. Each is the highest that (backward) still brakes to
-/// every later waypoint's speed with each segment's deceleration and
-/// (forward) is reached from the one before with its acceleration, and no
-/// waypoint is faster than its junction or either segment's max speed.
-/// Continuous kinematics, as grbl's planner; the tick-exact execution is the
-/// profile's. [`CoordError::CannotStop`] when `speed` is above what the
-/// first segment can still brake from, [`CoordError::TooManyAxes`] when
-/// `out` is too short.
-pub fn plan_speeds(speed: u32, segments: &[Segment], out: &mut [u32]) -> Result<usize, CoordError> {
-    let n = segments.len();
-    let Some(speeds) = out.get_mut(..=n) else {
-        return Err(CoordError::TooManyAxes);
+/// `segments.len() + 1` speeds to the start of `out` (the first is `speed`,
+/// the last 0). Each is the highest that (backward) still brakes to every
+/// later waypoint's speed with each segment's deceleration and (forward) is
+/// reached from the one before with its acceleration, and no waypoint is
+/// faster than its junction or either segment's max speed. Continuous
+/// kinematics, as grbl's planner; the tick-exact execution is the
+/// profile's.
+pub fn plan_speeds(speed: u32, segments: &[Segment], out: &mut [u32]) -> Result<(), CoordError> {
+    let Some((first, rest)) = out
+        .get_mut(..=segments.len())
+        .and_then(|s| s.split_first_mut())
+    else {
+        return Err(CoordError::OutputTooShort);
     };
-    // Backward: the highest speed at each waypoint that still stops at the end.
+    // Backward, from rest at the last waypoint: rest[k] is the speed at the
+    // end of segment k, capped by the junction after it and both segments'
+    // max speeds; `later` the speed at the end of the segment being looked at.
     let mut later = 0u32;
-    if let Some(last) = speeds.last_mut() {
-        *last = 0;
-    }
-    for k in (0..n).rev() {
-        let (Some(seg), Some(slot)) = (segments.get(k), speeds.get_mut(k)) else {
-            break;
-        };
-        let mut cap = over(later, seg.limits.dec, seg.length).min(seg.limits.max_speed.max(1));
-        if k > 0 {
-            let before = segments
-                .get(k - 1)
-                .map_or(u32::MAX, |b| b.limits.max_speed.max(1));
-            cap = cap.min(seg.junction).min(before);
+    for (k, seg) in segments.iter().enumerate().rev() {
+        let entry = over(later, seg.limits.dec, seg.length).min(seg.limits.max_speed.max(1));
+        if let Some(end) = rest.get_mut(k) {
+            *end = later;
         }
-        *slot = cap;
-        later = cap;
+        later = match k.checked_sub(1).and_then(|j| segments.get(j)) {
+            Some(before) => entry.min(seg.junction).min(before.limits.max_speed.max(1)),
+            None => entry,
+        };
     }
-    // Forward: from `speed`, as fast as each segment's acceleration allows.
-    let first = speeds.first().copied().unwrap_or(0);
-    if n > 0 && speed > first {
+    // `later` is now the highest speed the path may have at its start.
+    if speed > later {
         return Err(CoordError::CannotStop);
     }
+    // Forward, from `speed`: as fast as each segment's acceleration allows.
+    *first = speed;
     let mut now = speed;
-    for k in 0..=n {
-        let Some(slot) = speeds.get_mut(k) else {
-            break;
-        };
-        if k == 0 {
-            *slot = speed;
-        } else {
-            let reach = segments
-                .get(k - 1)
-                .map_or(0, |s| over(now, s.limits.acc, s.length));
-            *slot = (*slot).min(reach);
-        }
-        now = *slot;
+    for (end, seg) in rest.iter_mut().zip(segments) {
+        *end = (*end).min(over(now, seg.limits.acc, seg.length));
+        now = *end;
     }
-    Ok(n + 1)
+    Ok(())
 }
 
 impl Line {
@@ -245,51 +235,38 @@ impl Line {
         limits: &[Limits],
         path: Limits,
     ) -> Result<Line, CoordError> {
-        let n = start.len();
-        if n == 0 {
-            return Err(CoordError::NoAxes);
-        }
-        if n > MAX_AXES {
-            return Err(CoordError::TooManyAxes);
-        }
-        if target.len() != n || limits.len() != n {
-            return Err(CoordError::LengthMismatch);
-        }
         let mut s = [0i64; MAX_AXES];
         let mut delta = [0i64; MAX_AXES];
+        if start.len() > MAX_AXES {
+            return Err(CoordError::TooManyAxes);
+        }
         for (k, (a, b)) in start.iter().zip(target).enumerate() {
-            let d = i128::from(*b) - i128::from(*a);
-            if d.unsigned_abs() > u128::from(MAX_COMPONENT) {
-                return Err(CoordError::TooLong);
-            }
+            let d = i128::from(*b).saturating_sub(i128::from(*a));
             if let (Some(sk), Some(dk)) = (s.get_mut(k), delta.get_mut(k)) {
                 *sk = *a;
-                // |d| ≤ 2³²: fits.
-                *dk = d as i64;
+                // Beyond i64 is beyond MAX_COMPONENT: checked_length refuses it.
+                *dk = i64::try_from(d).unwrap_or(i64::MAX);
             }
         }
+        let n = start.len();
         let deltas = delta.get(..n).unwrap_or(&[]);
-        let length = deltas.iter().map(|d| d.unsigned_abs()).max().unwrap_or(0);
-        let mut profile = Profile::new(tick_us, path_limits(deltas, limits, path));
+        let length = checked_length(deltas, &[target.len(), limits.len()])?;
+        let mut profile = Profile::new(tick_us, path_limits(deltas, length, limits, path));
         // length ≤ 2³²: fits i64.
-        profile.move_to(length as i64);
+        let length = length as i64;
+        profile.move_to(length);
         Ok(Line {
             n,
             start: s,
             delta,
-            length: length as i64,
+            length,
             path: profile,
         })
     }
 
     /// Axes in the move.
-    pub fn len(&self) -> usize {
+    pub fn axes(&self) -> usize {
         self.n
-    }
-
-    /// Never true: a line has at least one axis.
-    pub fn is_empty(&self) -> bool {
-        self.n == 0
     }
 
     /// The limits the shared profile runs with (module doc).
@@ -314,28 +291,20 @@ impl Line {
 
     /// Axis `k`'s position, 2⁻³³ steps, exact but for the division by `L`
     /// (rounded toward zero: under 2⁻³³ steps). `None` past the last axis.
+    // |d| ≤ 2³², s ≤ 2⁶⁵: the product fits i128.
+    #[allow(clippy::arithmetic_side_effects)]
     pub fn position_fine(&self, k: usize) -> Option<i128> {
-        if k >= self.n {
-            return None;
-        }
-        let a = i128::from(*self.start.get(k)?) << POS_FRAC;
+        let (a, d) = (self.start.get(..self.n)?.get(k)?, self.delta.get(k)?);
+        let a = i128::from(*a) << POS_FRAC;
         if self.length == 0 {
             return Some(a);
         }
-        let d = i128::from(*self.delta.get(k)?);
-        Some(a + d * self.path.position_fine() / i128::from(self.length))
+        Some(a + i128::from(*d) * self.path.position_fine() / i128::from(self.length))
     }
 
     /// Axis `k`'s position, nearest step (halves away from zero).
     pub fn position(&self, k: usize) -> Option<i64> {
-        let f = self.position_fine(k)?;
-        let half = 1i128 << (POS_FRAC - 1);
-        let p = if f >= 0 {
-            (f + half) >> POS_FRAC
-        } else {
-            -((-f + half) >> POS_FRAC)
-        };
-        i64::try_from(p).ok()
+        i64::try_from(round_fine(self.position_fine(k)?)).ok()
     }
 }
 
@@ -423,7 +392,7 @@ mod tests {
             Line::new(1000, &[i64::MIN], &[i64::MAX], &[LIM], FAST),
             Err(CoordError::TooLong)
         );
-        assert_eq!(line_of(-(1 << 32)).map(|l| l.len()), Ok(1));
+        assert_eq!(line_of(-(1 << 32)).map(|l| l.axes()), Ok(1));
         assert_eq!(line_of(-(1 << 32) - 1), Err(CoordError::TooLong));
     }
 
@@ -435,7 +404,7 @@ mod tests {
     fn a_straight_continuation_is_no_junction() {
         assert_eq!(
             junction_speed(&[100, 50], &[40, 20], &[LIM; 2], 1000),
-            u32::MAX
+            Ok(u32::MAX)
         );
     }
 
@@ -443,42 +412,25 @@ mod tests {
     fn a_right_angle_allows_one_tick_of_the_smaller_acceleration() {
         // X then Y: each axis's velocity jumps by v; 50 000 steps/s² · 1 ms.
         let slow = Limits { acc: 20_000, ..LIM };
-        assert_eq!(junction_speed(&[100, 0], &[0, 300], &[LIM, slow], 1000), 20);
+        assert_eq!(
+            junction_speed(&[100, 0], &[0, 300], &[LIM, slow], 1000),
+            Ok(20)
+        );
     }
 
     #[test]
     fn a_reversal_allows_half_a_tick_of_acceleration() {
-        assert_eq!(junction_speed(&[100], &[-7], &[LIM], 1000), 25);
+        assert_eq!(junction_speed(&[100], &[-7], &[LIM], 1000), Ok(25));
     }
 
     #[test]
     fn a_zero_length_or_mismatched_segment_is_a_stop() {
-        assert_eq!(junction_speed(&[0, 0], &[5, 5], &[LIM; 2], 1000), 0);
-        assert_eq!(junction_speed(&[1, 0], &[5], &[LIM; 2], 1000), 0);
-        assert_eq!(junction_speed(&[], &[], &[], 1000), 0);
-    }
-
-    #[test]
-    fn integer_square_roots_are_exact() {
-        for x in [
-            0u128,
-            1,
-            2,
-            3,
-            4,
-            15,
-            16,
-            17,
-            1 << 64,
-            (1 << 66) - 1,
-            u128::MAX,
-        ] {
-            let r = isqrt(x);
-            assert!(
-                r * r <= x && (r + 1).checked_mul(r + 1).is_none_or(|s| s > x),
-                "{x}"
-            );
-        }
+        assert_eq!(junction_speed(&[0, 0], &[5, 5], &[LIM; 2], 1000), Ok(0));
+        assert_eq!(
+            junction_speed(&[1, 0], &[5], &[LIM; 2], 1000),
+            Err(CoordError::LengthMismatch)
+        );
+        assert_eq!(junction_speed(&[], &[], &[], 1000), Err(CoordError::NoAxes));
     }
 
     #[test]
@@ -489,7 +441,7 @@ mod tests {
             junction: u32::MAX,
         };
         let mut out = [7u32; 4];
-        assert_eq!(plan_speeds(0, &[seg], &mut out), Ok(2));
+        assert_eq!(plan_speeds(0, &[seg], &mut out), Ok(()));
         assert_eq!(&out[..2], &[0, 0]);
     }
 
@@ -515,15 +467,23 @@ mod tests {
             junction: u32::MAX,
         };
         let mut out = [0u32; 2];
-        assert_eq!(plan_speeds(1000, &[seg], &mut out), Ok(2));
+        assert_eq!(plan_speeds(1000, &[seg], &mut out), Ok(()));
         assert_eq!(
             plan_speeds(1001, &[seg], &mut out),
             Err(CoordError::CannotStop)
         );
         assert_eq!(
             plan_speeds(0, &[seg], &mut [0u32; 1]),
-            Err(CoordError::TooManyAxes)
+            Err(CoordError::OutputTooShort)
         );
+    }
+
+    #[test]
+    fn an_empty_path_only_plans_a_path_at_rest() {
+        let mut out = [9u32; 1];
+        assert_eq!(plan_speeds(0, &[], &mut out), Ok(()));
+        assert_eq!(out, [0]);
+        assert_eq!(plan_speeds(1, &[], &mut out), Err(CoordError::CannotStop));
     }
 
     #[test]

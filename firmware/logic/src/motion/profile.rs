@@ -46,8 +46,20 @@ use super::divisor::{div_u128_by_u32, Divisor};
 /// Velocity and acceleration fraction bits (2⁻³² steps per tick).
 const VEL_FRAC: u32 = 32;
 /// Position fraction bits (2⁻³³ steps: half a velocity quantum, so `(v+v')/2` is exact).
-const POS_FRAC: u32 = 33;
+pub(crate) const POS_FRAC: u32 = 33;
 const ONE_STEP: i128 = 1 << POS_FRAC;
+
+/// A position in 2⁻³³ steps rounded to the nearest step (halves away
+/// from zero).
+#[inline]
+pub(crate) fn round_fine(fine: i128) -> i128 {
+    let half = ONE_STEP / 2;
+    if fine >= 0 {
+        (fine + half) >> POS_FRAC
+    } else {
+        -((-fine + half) >> POS_FRAC)
+    }
+}
 
 /// Motion limits in logical steps.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -390,13 +402,7 @@ impl Profile {
 
     /// Position, rounded to the nearest step (halves away from zero).
     pub fn position_round(&self) -> i64 {
-        let half = ONE_STEP / 2;
-        let p = if self.pos >= 0 {
-            (self.pos + half) >> POS_FRAC
-        } else {
-            -((-self.pos + half) >> POS_FRAC)
-        };
-        p as i64
+        round_fine(self.pos) as i64
     }
 
     /// Position in 2⁻³³ steps (exact).
