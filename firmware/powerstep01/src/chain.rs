@@ -246,8 +246,7 @@ impl Plan {
                 break;
             };
             let Some((len, end)) = self.lay_stream(d, cmds, stream) else {
-                self.n = 0;
-                return Err(ScheduleError::TooManyWindows);
+                return Err(self.too_many_windows());
             };
             if let (Some(l), Some(e)) = (lens.get_mut(d), ends.get_mut(d)) {
                 *l = len;
@@ -260,9 +259,7 @@ impl Plan {
             windows = windows.max(sync - l + e);
         }
         if windows > MAX_WINDOWS {
-            self.n = 0;
-            self.reads.clear();
-            return Err(ScheduleError::TooManyWindows);
+            return Err(self.too_many_windows());
         }
         self.windows = windows as u8;
         self.sync_window = sync.saturating_sub(1) as u8;
@@ -273,6 +270,15 @@ impl Plan {
         }
         self.fill_windows(&streams, &lens, sync);
         Ok(())
+    }
+
+    /// A batch that does not fit: the plan is left empty (no devices, no
+    /// read slots).
+    fn too_many_windows(&mut self) -> ScheduleError {
+        self.n = 0;
+        self.windows = 0;
+        self.reads.clear();
+        ScheduleError::TooManyWindows
     }
 
     /// Device `d`'s byte stream for `cmds`, written into `stream` (zeroed:

@@ -477,20 +477,8 @@ impl IoExtDriver {
     /// Clock `plan`'s wire through the simulated chips, half period by half
     /// period (they take line levels): the bits the master samples.
     fn transfer(&mut self, plan: &TransferPlan) -> WireBits {
-        let mut rx = WireBits::ZERO;
-        let mut k = 0;
-        for h in wire(plan) {
-            let miso = self.chain.step(Lines {
-                cs: h.cs,
-                sck: h.sck,
-                mosi: h.mosi,
-            });
-            if h.sample {
-                rx.set(k, miso);
-                k = k.saturating_add(1);
-            }
-        }
-        rx
+        let halves = wire(plan).map(|h| (Lines::new(h.cs, h.sck, h.mosi), h.sample));
+        WireBits::from_words(self.chain.clock_transfer(halves))
     }
 
     /// No DMA interrupt ever fires under QEMU.
