@@ -66,7 +66,20 @@ pub(super) enum Pdu<'a> {
     },
 }
 
-impl Pdu<'_> {
+impl<'a> Pdu<'a> {
+    /// A write's start address, quantity (1 for 06) and register bytes.
+    fn write_parts(&self) -> Option<(u16, u16, &'a [u8])> {
+        match *self {
+            Pdu::Read { .. } => None,
+            Pdu::WriteSingle { address, data } => Some((address, 1, data)),
+            Pdu::WriteMultiple {
+                address,
+                quantity,
+                data,
+            } => Some((address, quantity, data)),
+        }
+    }
+
     fn address_is_extension(&self) -> bool {
         match *self {
             Pdu::Read { address, .. }
@@ -176,19 +189,12 @@ fn serve(
             let _ = out.push(count);
             let _ = out.extend_from_slice(regs.get(..n).unwrap_or(&[]));
         }
-        Pdu::WriteSingle { address, data } => {
-            let req = map::write(address, 1, data)?;
-            execute(axis, req, stats, target)?;
-            write_response(request, pdu, out);
-        }
-        Pdu::WriteMultiple {
-            address,
-            quantity,
-            data,
-        } => {
-            let req = map::write(address, quantity, data)?;
-            execute(axis, req, stats, target)?;
-            write_response(request, pdu, out);
+        Pdu::WriteSingle { .. } | Pdu::WriteMultiple { .. } => {
+            if let Some((address, quantity, data)) = request.write_parts() {
+                let req = map::write(address, quantity, data)?;
+                execute(axis, req, stats, target)?;
+                write_response(request, pdu, out);
+            }
         }
     }
     Ok(())
@@ -291,16 +297,13 @@ pub(super) fn respond(
 
 /// Execute a broadcast write on every axis; never answers.
 pub(super) fn broadcast(pdu: &[u8], stats: &mut Stats, target: &mut impl ModbusTarget) {
-    let ext = match parse(pdu) {
-        Ok(Pdu::WriteSingle { address, data }) if map::is_extension(address) => {
-            Some((address, data))
-        }
-        Ok(Pdu::WriteMultiple { address, data, .. }) if map::is_extension(address) => {
-            Some((address, data))
-        }
-        _ => None,
+    let Ok(request) = parse(pdu) else {
+        return;
     };
-    if let Some((address, data)) = ext {
+    let Some((address, quantity, data)) = request.write_parts() else {
+        return;
+    };
+    if request.address_is_extension() {
         let mut regs = [0u16; WRITE_QUANTITY_MAX as usize];
         let n = registers_of(data, &mut regs);
         for axis in 0..target.axes() {
@@ -308,16 +311,7 @@ pub(super) fn broadcast(pdu: &[u8], stats: &mut Stats, target: &mut impl ModbusT
         }
         return;
     }
-    let req = match parse(pdu) {
-        Ok(Pdu::WriteSingle { address, data }) => map::write(address, 1, data),
-        Ok(Pdu::WriteMultiple {
-            address,
-            quantity,
-            data,
-        }) => map::write(address, quantity, data),
-        Ok(Pdu::Read { .. }) | Err(_) => return,
-    };
-    let Ok(req) = req else {
+    let Ok(req) = map::write(address, quantity, data) else {
         return;
     };
     if let Request::SetAddress { current, .. } = req {
