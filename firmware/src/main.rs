@@ -234,9 +234,12 @@ mod app {
             dp.GPIOB.split(&mut rcc),
             dp.GPIOC.split(&mut rcc),
         );
-        let chain_pins = (pins.chain_sck, pins.chain_miso, pins.chain_mosi);
-        let chain = (dp.SPI1, dp.TIM7, chain_pins, pins.chain_cs, pins.chain_stby);
-        let (bus, stby) = start_chain(chain, cx.local.chain_buffers, &mut rcc, boot.sysclk);
+        let chain = ChainPeripherals {
+            spi: dp.SPI1,
+            tim: dp.TIM7,
+            lines: pins.chain,
+        };
+        let (bus, stby) = start_chain(chain, pins.chain_stby, cx.local.chain_buffers, &mut rcc);
 
         let mut store = Store::new(platform::settings_flash(dp.FLASH));
         let uid = platform::unique_id();
@@ -248,9 +251,14 @@ mod app {
         let i2c = start_i2c(dp.I2C1, i2c_pins, &bridge, &mut rcc);
         let modbus_pins = (pins.modbus_tx, pins.modbus_rx, pins.modbus_de);
         let (rs485, timing) = start_modbus(dp.USART2, modbus_pins, &bridge, &mut rcc);
-        let io_pins = (pins.ioext_sck, pins.ioext_miso, pins.ioext_mosi);
-        let io = (dp.SPI2, dp.TIM1, dp.DMA1, dp.DMA2, io_pins, pins.ioext_cs);
-        let ioext = start_ioext(io, cx.local.io_buffers, &mut rcc);
+        let io = IoExtPeripherals {
+            spi: dp.SPI2,
+            tim: dp.TIM1,
+            dma1: dp.DMA1,
+            dma2: dp.DMA2,
+            lines: pins.ioext,
+        };
+        let ioext = platform::ioext_driver(io, cx.local.io_buffers, &mut rcc);
         let mut analog = Analog::new(dp.ADC1, pins.supply_sense, &mut rcc);
         bridge.on_analog(analog.sample());
         let tick = start_tasks(dp.TIM2, rate, &mut rcc);
@@ -299,7 +307,6 @@ mod app {
         handoff: Option<ResetTarget>,
         /// RCC_CSR's reset flags, decoded (and cleared).
         reset_cause: ResetCause,
-        sysclk: u32,
     }
 
     /// Start-up step 1: the handoff word first (ST's ROM bootloader wants
@@ -334,7 +341,6 @@ mod app {
         let boot = Boot {
             handoff,
             reset_cause,
-            sysclk,
         };
         (rcc, boot)
     }
@@ -350,51 +356,14 @@ mod app {
     /// Start-up step 2: the chain's driver (SPI1, TIM7, DMA2), then the
     /// chips out of reset.
     fn start_chain(
-        (spi, tim, lines, cs, mut stby): (
-            pins::ChainSpi,
-            pins::ChainGapTimer,
-            (pins::ChainSck, pins::ChainMiso, pins::ChainMosi),
-            pins::ChainCs,
-            pins::ChainStby,
-        ),
+        chain: ChainPeripherals,
+        mut stby: pins::ChainStby,
         buffers: &'static mut ChainBuffers,
         rcc: &mut stm32f4xx_hal::rcc::Rcc,
-        sysclk: u32,
     ) -> (ChainLink, pins::ChainStby) {
-        let chain = ChainPeripherals {
-            spi,
-            pins: lines,
-            cs,
-            tim,
-        };
         let bus = platform::chain_driver(chain, buffers, rcc);
-        release_chain(&mut stby, sysclk);
+        release_chain(&mut stby, rcc.clocks.sysclk().raw());
         (bus, stby)
-    }
-
-    /// Start-up step: the I/O extension's port on SPI2, TIM1, DMA1/DMA2
-    /// and its pins (nothing driven until its first transfer).
-    fn start_ioext(
-        (spi, tim, dma1, dma2, lines, cs): (
-            pins::IoExtSpi,
-            pins::IoExtTimer,
-            pins::IoExtSpiDma,
-            pins::IoExtTimerDma,
-            (pins::IoExtSck, pins::IoExtMiso, pins::IoExtMosi),
-            pins::IoExtCs,
-        ),
-        bufs: &'static mut IoExtBuffers,
-        rcc: &mut stm32f4xx_hal::rcc::Rcc,
-    ) -> platform::IoExtDriver {
-        let io = IoExtPeripherals {
-            spi,
-            tim,
-            dma1,
-            dma2,
-            pins: lines,
-            cs,
-        };
-        platform::ioext_driver(io, bufs, rcc)
     }
 
     /// Start-up step 3: the settings, chain detection and set-up, the tick

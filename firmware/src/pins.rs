@@ -151,10 +151,8 @@ pub const IOEXT_CS_PIN: u8 = 11;
 
 /// The configured pins of everything in use.
 pub struct Pins {
-    pub chain_sck: ChainSck,
-    pub chain_miso: ChainMiso,
-    pub chain_mosi: ChainMosi,
-    pub chain_cs: ChainCs,
+    /// SPI1's lines and CS, for the chain's driver.
+    pub chain: ChainLines,
     pub chain_stby: ChainStby,
     // FLAG/BUSY are configured (inputs with pull-ups, so the open-drain lines
     // are defined) but not read: the bridge reads STATUS every 2 ms instead.
@@ -171,10 +169,26 @@ pub struct Pins {
     pub modbus_de: ModbusDe,
     pub usb_dm: UsbDm,
     pub usb_dp: UsbDp,
-    pub ioext_sck: IoExtSck,
-    pub ioext_miso: IoExtMiso,
-    pub ioext_mosi: IoExtMosi,
-    pub ioext_cs: IoExtCs,
+    /// SPI2's lines and CS, for the I/O extension's driver.
+    pub ioext: IoExtLines,
+}
+
+/// The chain's SPI1 lines and chip select, as the chain's driver takes them.
+#[derive(Debug)]
+pub struct ChainLines {
+    pub sck: ChainSck,
+    pub miso: ChainMiso,
+    pub mosi: ChainMosi,
+    pub cs: ChainCs,
+}
+
+/// The I/O extension's SPI2 lines and chip select, as its driver takes them.
+#[derive(Debug)]
+pub struct IoExtLines {
+    pub sck: IoExtSck,
+    pub miso: IoExtMiso,
+    pub mosi: IoExtMosi,
+    pub cs: IoExtCs,
 }
 
 /// Configure every pin in use from the split GPIO ports. Safe states first:
@@ -194,13 +208,15 @@ pub fn configure(
     let (host_i2c_scl, host_i2c_sda) = host_i2c_pins(gpiob.pb6, gpiob.pb7);
     let (modbus_tx, modbus_rx, modbus_de) = modbus_pins(gpioa.pa2, gpioa.pa3, gpioa.pa1);
     Pins {
-        // SCK ≤ 4 MHz: medium slew is ample and keeps edges on the chain cable soft.
-        chain_sck: gpioa.pa5.into_alternate().speed(Speed::Medium),
-        // SDO is high-Z while CS is high: the pull-up keeps MISO defined
-        // (reads 0xFF with no chain attached).
-        chain_miso: gpioa.pa6.into_alternate().internal_pull_up(true),
-        chain_mosi: gpioa.pa7.into_alternate().speed(Speed::Medium),
-        chain_cs: gpioa.pa4.into_push_pull_output_in_state(PinState::High),
+        chain: ChainLines {
+            // SCK ≤ 4 MHz: medium slew is ample and keeps edges on the chain cable soft.
+            sck: gpioa.pa5.into_alternate().speed(Speed::Medium),
+            // SDO is high-Z while CS is high: the pull-up keeps MISO defined
+            // (reads 0xFF with no chain attached).
+            miso: gpioa.pa6.into_alternate().internal_pull_up(true),
+            mosi: gpioa.pa7.into_alternate().speed(Speed::Medium),
+            cs: gpioa.pa4.into_push_pull_output_in_state(PinState::High),
+        },
         chain_stby: gpioc.pc4.into_push_pull_output_in_state(PinState::Low),
         chain_flag: gpioc.pc5.into_pull_up_input(),
         chain_busy: gpiob.pb0.into_pull_up_input(),
@@ -214,12 +230,14 @@ pub fn configure(
         // Full speed, 12 Mbit/s: the fastest slew.
         usb_dm: gpioa.pa11.into_alternate().speed(Speed::VeryHigh),
         usb_dp: gpioa.pa12.into_alternate().speed(Speed::VeryHigh),
-        ioext_cs: gpiob.pb11.into_push_pull_output_in_state(PinState::High),
-        ioext_sck: gpiob.pb13.into_floating_input(),
-        // QH of a '165 is always driven; the pull-up keeps MISO defined
-        // with nothing attached.
-        ioext_miso: gpiob.pb14.into_pull_up_input(),
-        ioext_mosi: gpiob.pb15.into_floating_input(),
+        ioext: IoExtLines {
+            cs: gpiob.pb11.into_push_pull_output_in_state(PinState::High),
+            sck: gpiob.pb13.into_floating_input(),
+            // QH of a '165 is always driven; the pull-up keeps MISO defined
+            // with nothing attached.
+            miso: gpiob.pb14.into_pull_up_input(),
+            mosi: gpiob.pb15.into_floating_input(),
+        },
     }
 }
 

@@ -28,10 +28,7 @@ use stm32f4xx_hal::pac::{self, Interrupt};
 use stm32f4xx_hal::rcc::{Enable, Rcc, Reset};
 
 use crate::drivers::dma;
-use crate::pins::{
-    ChainCs, ChainGapTimer, ChainMiso, ChainMosi, ChainSck, ChainSpi as ChainSpiPeriph,
-    CHAIN_CS_PIN,
-};
+use crate::pins::{ChainGapTimer, ChainLines, ChainSpi as ChainSpiPeriph, CHAIN_CS_PIN};
 
 pub use drivers_core::chain_spi::{
     ChainBuffers, ChainDmaStats, ChainSpiError, CS_DESELECT_NS, CS_SETUP_NS, DMEIF0, DMEIF3, FEIF0,
@@ -220,14 +217,13 @@ impl ChainMemory for ChainRegs {
     }
 }
 
-/// What the chain's driver owns: SPI1, its pins (SCK, MISO, MOSI as
-/// `pins::configure` left them, CS high) and TIM7, the gap timer.
+/// What the chain's driver owns: SPI1, its lines (as `pins::configure`
+/// left them, CS high) and TIM7, the gap timer.
 #[derive(Debug)]
 pub struct ChainPeripherals {
     pub spi: ChainSpiPeriph,
-    pub pins: (ChainSck, ChainMiso, ChainMosi),
-    pub cs: ChainCs,
     pub tim: ChainGapTimer,
+    pub lines: ChainLines,
 }
 
 /// Take the chain's peripherals and return their one driver. Clocks and

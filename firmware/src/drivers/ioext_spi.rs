@@ -28,8 +28,8 @@ use stm32f4xx_hal::rcc::{Enable, Rcc, Reset};
 
 use crate::drivers::dma;
 use crate::pins::{
-    IoExtCs, IoExtMiso, IoExtMosi, IoExtSck, IoExtSpi, IoExtSpiDma, IoExtTimer, IoExtTimerDma,
-    IOEXT_CS_PIN, IOEXT_MISO_PIN, IOEXT_MOSI_PIN, IOEXT_SCK_PIN,
+    IoExtLines, IoExtSpi, IoExtSpiDma, IoExtTimer, IoExtTimerDma, IOEXT_CS_PIN, IOEXT_MISO_PIN,
+    IOEXT_MOSI_PIN, IOEXT_SCK_PIN,
 };
 
 pub use drivers_core::ioext_spi::{IoExtBuffers, IoExtError, Started};
@@ -220,16 +220,15 @@ impl IoExtHw for IoExtRegs {
     }
 }
 
-/// What the I/O extension owns: SPI2, TIM1, DMA1, DMA2 and its pins (SCK,
-/// MISO, MOSI as `pins::configure` left them, CS high).
+/// What the I/O extension owns: SPI2, TIM1, DMA1, DMA2 and its lines (as
+/// `pins::configure` left them, CS high).
 #[derive(Debug)]
 pub struct IoExtPeripherals {
     pub spi: IoExtSpi,
     pub tim: IoExtTimer,
     pub dma1: IoExtSpiDma,
     pub dma2: IoExtTimerDma,
-    pub pins: (IoExtSck, IoExtMiso, IoExtMosi),
-    pub cs: IoExtCs,
+    pub lines: IoExtLines,
 }
 
 /// Take the extension's peripherals and return the port; nothing is

@@ -151,9 +151,8 @@ pub fn chain(mut t: Target) -> firmware::drivers::chain_spi::ChainSpi {
     };
     let peripherals = ChainPeripherals {
         spi: t.spi1,
-        pins: (p.chain_sck, p.chain_miso, p.chain_mosi),
-        cs: p.chain_cs,
         tim: t.tim7,
+        lines: p.chain,
     };
     chain_spi(peripherals, bufs, &mut t.rcc)
 }
@@ -171,8 +170,7 @@ pub fn ioext_port(mut t: Target) -> firmware::drivers::ioext_spi::IoExtPort {
         tim: t.tim1,
         dma1: t.dma1,
         dma2: t.dma2,
-        pins: (p.ioext_sck, p.ioext_miso, p.ioext_mosi),
-        cs: p.ioext_cs,
+        lines: p.ioext,
     };
     ioext_port(peripherals, bufs, &mut t.rcc)
 }
