@@ -39,7 +39,7 @@ use crate::setup::{self, Qemu, TARGET};
 use crate::util::{self, bail, Result};
 use disasm::Disasm;
 
-/// CPU clock of the board (RM0090 §6: 168 MHz maximum; board.rs's PLL).
+/// CPU clock of the board (RM0090 §6: 168 MHz maximum; platform/stm32f405.rs's PLL (freeze_clocks)).
 const SYSCLK_HZ: f64 = 168e6;
 /// Flash wait states at 168 MHz (RM0090 table 10).
 const WAIT_STATES: f64 = 5.0;

@@ -1,8 +1,10 @@
-//! A coordinated straight-line move of several axes: the shared profile of
-//! issue 23's coordinated moves, on its own. Not reachable from any bus yet
-//! (the group's per-tick streaming, the path queue with its junction rule,
-//! group stops and the register block are the next steps, listed as
-//! missing in the README).
+//! Coordinated moves, the pure parts: the shared profile of a straight-line
+//! move of several axes ([`Line`]), the speed through a junction of two
+//! segments ([`junction_speed`]) and the look-ahead over queued segments
+//! ([`plan_speeds`]). Not reachable from any bus yet: the group's per-tick
+//! streaming, the path queue that runs segments with their exit speeds,
+//! group stops and the register block are the next steps (listed as missing
+//! in the README).
 //!
 //! # What it guarantees
 //!
@@ -119,7 +121,8 @@ fn path_limits(deltas: &[i64], length: u64, limits: &[Limits], path: Limits) -> 
 /// jumps by more than the smaller of its acceleration and deceleration
 /// allows in one tick of `tick_us`: with `u = d_in / L_in`,
 /// `w = d_out / L_out` and the speed `v` on both sides, axis `i` jumps by
-/// `v · |uᵢ − wᵢ|`, so `v ≤ minᵢ accᵢ · tick / |uᵢ − wᵢ|` (rounded down). A
+/// `v · |uᵢ − wᵢ|`, so `v ≤ minᵢ min(accᵢ, decᵢ) · tick / |uᵢ − wᵢ|`
+/// (rounded down). A
 /// chip sees one velocity per tick: a jump no larger than one tick's
 /// acceleration is what it does between any two ticks anyway. `u32::MAX`
 /// for a straight continuation (the segments' own limits cap it), 0 when
