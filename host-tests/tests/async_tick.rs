@@ -5,6 +5,7 @@
 use bridge_logic::bridge::Bridge;
 use bridge_logic::postep60::{PowerStage, Request, Settings};
 use bridge_logic::powerstep::chain::{ChainBus, Frames, MAX_DEVICES, MAX_WINDOWS};
+use host_tests::sim_bridge::Breakable;
 use host_tests::sim_bridge::{chip, new_bridge, TICK_US};
 use stepbridge_sim::SimChain;
 
@@ -68,37 +69,16 @@ fn a_tick_begun_and_ended_around_the_driver_equals_the_blocking_tick() {
     );
 }
 
-/// A chain whose bus fails on request.
-#[derive(Debug)]
-struct Flaky {
-    sim: SimChain,
-    fail: bool,
-}
-
-impl ChainBus for Flaky {
-    type Error = ();
-    fn window(&mut self, tx: &[u8], rx: &mut [u8]) -> Result<(), ()> {
-        if self.fail {
-            return Err(());
-        }
-        let _ = self.sim.window(tx, rx);
-        Ok(())
-    }
-}
-
 #[test]
 fn a_transfer_the_driver_reports_failed_sets_every_chip_up_again() {
     let mut b = Bridge::new(
-        Flaky {
-            sim: SimChain::new(2),
-            fail: false,
-        },
+        Breakable::new(2),
         PowerStage::REFERENCE,
         Settings::FACTORY,
         bridge_logic::bridge::SettingsSource::Stored,
         TICK_US,
     );
-    let tick = |b: &mut Bridge<Flaky>, now: u64, fail: bool| {
+    let tick = |b: &mut Bridge<Breakable>, now: u64, fail: bool| {
         if b.tick_begin(now) {
             if fail {
                 b.tick_end(Err(()));
