@@ -51,11 +51,7 @@ pub fn factory_bridge_on<C: ChainBus>(chain: C) -> Bridge<C> {
 
 /// The ADC's raw sample of a 24 V supply at 25 °C on the reference stage.
 fn measure_24v_25c<C: ChainBus>(bridge: &mut Bridge<C>) {
-    bridge.on_analog(AnalogSample {
-        supply: 1490,
-        temperature: 943,
-        vrefint: 1502,
-    });
+    bridge.on_analog(AnalogSample::NOMINAL_24V_25C);
 }
 
 /// Every axis settled (profile done, chip landed and confirmed).

@@ -664,11 +664,7 @@ fn above_the_temperature_limit_currents_drop_to_the_overheat_current() {
     assert_eq!(b.chip(0).register(Register::KvalRun), 5);
     assert_eq!(b.chip(0).register(Register::KvalHold), 5);
     // Back below limit − 2 °C: full current again.
-    b.bridge.on_analog(AnalogSample {
-        supply: 1490,
-        temperature: 943,
-        vrefint: 1502,
-    });
+    b.bridge.on_analog(AnalogSample::NOMINAL_24V_25C);
     b.run(4);
     assert_eq!(b.query(A0, 0x13, 1), [2]);
     assert_eq!(b.chip(0).register(Register::KvalRun), 11);

@@ -314,11 +314,7 @@ impl Wire {
             SettingsSource::Stored,
             TICK_US,
         );
-        bridge.on_analog(AnalogSample {
-            supply: 1490,
-            temperature: 943,
-            vrefint: 1502,
-        });
+        bridge.on_analog(AnalogSample::NOMINAL_24V_25C);
         Wire {
             bridge,
             chain,

@@ -503,19 +503,12 @@ impl IoExtDriver {
 pub struct Analog;
 
 impl Analog {
-    /// 24 V / 20 = 1.2 V at the pin = 1490 counts at VDDA 3.2988 V.
-    const SAMPLE: AnalogSample = AnalogSample {
-        supply: 1490,
-        temperature: 943,
-        vrefint: 1502,
-    };
-
     pub fn new(_adc: SenseAdc, _pin: SupplySense, _rcc: &mut Rcc) -> Analog {
         Analog
     }
 
     pub fn sample(&mut self) -> AnalogSample {
-        let mut s = Self::SAMPLE;
+        let mut s = AnalogSample::NOMINAL_24V_25C;
         let mv = SUPPLY_MV.load(Ordering::Relaxed);
         if mv != SUPPLY_OWN {
             s.supply = supply_counts(mv, s.vrefint);

@@ -54,13 +54,6 @@ pub const UID: [u32; 3] = [0x0045_0021, 0x3133_5111, 0x3538_3530];
 /// Housekeeping period, ms (the firmware spawns it at 10 Hz).
 pub const HOUSEKEEPING_MS: u64 = 100;
 
-/// The ADC sample the box measures: 24 V supply, about 25 °C.
-pub const ANALOG: AnalogSample = AnalogSample {
-    supply: 1490,
-    temperature: 943,
-    vrefint: 1502,
-};
-
 /// The link as the firmware's `UsbPort::poll` reports it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Link {
@@ -185,7 +178,7 @@ impl PoStepBox {
         if handoff == Some(ResetTarget::BootMode) {
             bridge.enter_boot_mode();
         }
-        bridge.on_analog(ANALOG);
+        bridge.on_analog(AnalogSample::NOMINAL_24V_25C);
         let (usb, port) = UsbPort::start(UID);
         PoStepBox {
             bridge,
@@ -281,7 +274,7 @@ impl PoStepBox {
     }
 
     fn housekeeping(&mut self) -> Option<Restart> {
-        self.bridge.on_analog(ANALOG);
+        self.bridge.on_analog(AnalogSample::NOMINAL_24V_25C);
         let mut image = [0u8; IMAGE_LEN];
         if self.bridge.take_save(&mut image) {
             let ok = self.store.save(&image).is_ok();

@@ -24,6 +24,18 @@ pub struct AnalogSample {
     pub vrefint: u16,
 }
 
+impl AnalogSample {
+    /// What the reference power stage reads at a 24 V supply and a 25 °C
+    /// die with VDDA = 3.2988 V: 24 V / 20 = 1.2 V at the pin = 1490 counts;
+    /// 0.76 V = 943 counts; VREFINT 1.21 V = 1502 counts. The simulations'
+    /// and the QEMU image's stand-in for the ADC.
+    pub const NOMINAL_24V_25C: AnalogSample = AnalogSample {
+        supply: 1490,
+        temperature: 943,
+        vrefint: 1502,
+    };
+}
+
 /// Analogue part of the board description.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
