@@ -10,6 +10,7 @@ use bridge_logic::postep60::Settings;
 use host_tests::usb_bench::{read, transact, write, UsbCtx, UID};
 use host_tests::usb_manual::{
     be16, be32, le32, out, phys, trajectory, write_driver_settings, MANUAL_CONFIG, MANUAL_DEVICE,
+    REPORT_DESCRIPTOR,
 };
 use stepbridge_sim::Fault;
 use usbd_class_tester::prelude::*;
@@ -68,22 +69,11 @@ fn hid_and_report_descriptors_come_from_the_interface() {
             let hid = dev
                 .control_read(&mut cls, to_interface, 6, 0x2100, 0, 9)
                 .expect("HID descriptor");
-            assert_eq!(hid, [0x09, 0x21, 0x11, 0x01, 0x00, 0x01, 0x22, 0x21, 0x00]);
+            assert_eq!(hid, MANUAL_CONFIG[18..27]);
             let report = dev
                 .control_read(&mut cls, to_interface, 6, 0x2200, 0, 0x21)
                 .expect("report descriptor");
-            assert_eq!(
-                report,
-                [
-                    0x06, 0x00, 0xFF, 0x09, 0x01, 0xA1,
-                    0x01, // vendor page, usage 1, application
-                    0x85, 0x02, 0x75, 0x08, 0x95, 0x3F, // id 2, 63 bytes
-                    0x15, 0x00, 0x26, 0xFF, 0x00, 0x09, 0x01, 0x81, 0x02, // 0..255, input
-                    0x85, 0x02, 0x75, 0x08, 0x95, 0x3F, 0x09, 0x01, 0x91,
-                    0x02, // output, id 2
-                    0xC0,
-                ]
-            );
+            assert_eq!(report, REPORT_DESCRIPTOR);
         })
         .expect("with_usb");
 }

@@ -10,17 +10,7 @@ use usbip_box::vhci;
 
 use crate::{Args, Checks};
 
-pub use host_tests::usb_manual::{MANUAL_CONFIG, MANUAL_DEVICE};
-
-/// The report descriptor's 33 bytes (`transport::usb` module doc; the
-/// manual gives only its length): report id 2, 63 bytes in and out.
-pub const REPORT_DESCRIPTOR: [u8; 33] = [
-    0x06, 0x00, 0xFF, 0x09, 0x01, 0xA1, 0x01, // vendor page, usage 1, application
-    0x85, 0x02, 0x75, 0x08, 0x95, 0x3F, // id 2, 63 bytes
-    0x15, 0x00, 0x26, 0xFF, 0x00, 0x09, 0x01, 0x81, 0x02, // 0..255, input
-    0x85, 0x02, 0x75, 0x08, 0x95, 0x3F, 0x09, 0x01, 0x91, 0x02, // output, id 2
-    0xC0,
-];
+use host_tests::usb_manual::{MANUAL_CONFIG, MANUAL_DEVICE, REPORT_DESCRIPTOR};
 
 const WAIT: Duration = Duration::from_secs(30);
 
