@@ -112,6 +112,10 @@ impl Console {
     }
 }
 
+// A contact's bit is `1 << bit` with `bit < IOEXT_165 * 8` (ConsoleLine::parse
+// bounds it): the inputs must fit the u32 word.
+const _: () = assert!(IOEXT_165 * 8 <= 32);
+
 /// Act on one console line.
 pub(super) fn apply(line: Option<ConsoleLine>, len: usize) {
     match line {

@@ -274,12 +274,14 @@ fn query_shape(cmd: u8) -> Option<(u8, Build)> {
     })
 }
 
+/// Data byte `i` of a write (0 past its end: the shape's length was checked).
+fn b(d: &[u8], i: usize) -> u8 {
+    d.get(i).copied().unwrap_or(0)
+}
+
 /// The PoStep60 writes (manual 8.3): data bytes, one [`Request`] each.
 fn request_shape(cmd: u8) -> Option<(u8, Build)> {
     use I2cCommand as C;
-    fn b(d: &[u8], i: usize) -> u8 {
-        d.get(i).copied().unwrap_or(0)
-    }
     fn u16le(d: &[u8]) -> u16 {
         u16::from_le_bytes([b(d, 0), b(d, 1)])
     }
@@ -338,9 +340,6 @@ fn request_shape(cmd: u8) -> Option<(u8, Build)> {
 /// The bridge's own commands: axis selection, soft stop, extension space.
 fn extension_shape(cmd: u8) -> Option<(u8, Build)> {
     use I2cCommand as C;
-    fn b(d: &[u8], i: usize) -> u8 {
-        d.get(i).copied().unwrap_or(0)
-    }
     Some(match cmd {
         SELECT_AXIS => (0, |d| match d.first() {
             Some(&axis) => C::SelectAxis(axis),
