@@ -199,17 +199,14 @@ impl Powerstep01 {
                 None => Ph::Wait,
             };
         }
-        let n1 = (self.v - vf) / d;
-        if n1 == 0 {
-            self.v = 0;
-            return Ph::Done;
+        match self.ramp_ticks(self.v - vf, d, 0, avail) {
+            Ok(n) => {
+                self.ramp_down(d, n);
+                Ph::Used(n)
+            }
+            Err(Some(_)) => Ph::Done,
+            Err(None) => Ph::Wait,
         }
-        if avail == 0 {
-            return Ph::Wait;
-        }
-        let n = n1.min(avail);
-        self.ramp_down(d, n);
-        Ph::Used(n)
     }
 
     /// One phase of the engine: `Some(ticks used)` (0 for an instant state
@@ -367,7 +364,7 @@ impl Powerstep01 {
                 self.set_position_state(dir, target, remaining, false);
                 return Some(0);
             }
-            return self.cruise_position(dir, target, remaining, leg.r, None, avail);
+            return self.cruise_position(leg, None, avail);
         }
 
         // Start braking once the remaining distance is within the braking distance.
@@ -387,7 +384,7 @@ impl Powerstep01 {
         if v < vmax {
             return self.accelerate_position(leg, b, avail);
         }
-        self.cruise_position(dir, target, remaining, leg.r, b, avail)
+        self.cruise_position(leg, b, avail)
     }
 
     /// Down by DEC towards `to` (the floor while braking, MAX_SPEED when over
@@ -428,7 +425,7 @@ impl Powerstep01 {
         let d = self.dec();
         let a = self.acc();
         if a == 0 {
-            return self.cruise_position(leg.dir, leg.target, leg.remaining, leg.r, b, avail);
+            return self.cruise_position(leg, b, avail);
         }
         let n = match self.ramp_ticks(vmax - v, a, vmax, avail) {
             Ok(n) => n,
@@ -458,40 +455,29 @@ impl Powerstep01 {
     /// Constant speed towards the target. `brake`: braking distance at this
     /// speed when braking has not started yet (`None` when already braking
     /// or no braking applies): the phase ends where braking must start.
-    pub(super) fn cruise_position(
-        &mut self,
-        dir: Direction,
-        target: u32,
-        remaining: u64,
-        r: u128,
-        brake: Option<u128>,
-        avail: u64,
-    ) -> Option<u64> {
+    fn cruise_position(&mut self, leg: Leg, brake: Option<u128>, avail: u64) -> Option<u64> {
         let v = self.v;
         if v == 0 || avail == 0 {
             return None;
         }
         let per = u128::from(v) << self.step_shift();
-        let ms = 1u128 << self.step_shift();
-        let bs = brake.unwrap_or(0).saturating_mul(ms);
+        let bs = brake.unwrap_or(0).saturating_mul(leg.ms);
         let braking = matches!(self.motion, Motion::Position { braking: true, .. });
         // First tick after which r − j·per ≤ bs (bs < r: not yet triggered).
-        let gap = r.saturating_sub(bs);
+        let gap = leg.r.saturating_sub(bs);
         let j = gap.div_ceil(per).max(1);
         if j <= u128::from(avail) {
             let j64 = u64::try_from(j).unwrap_or(avail);
-            if per.saturating_mul(j) >= r {
-                self.land(dir, remaining);
+            if per.saturating_mul(j) >= leg.r {
+                self.land(leg.dir, leg.remaining);
             } else {
                 let steps = self.move_full(u128::from(v) * j);
-                let rem = remaining.saturating_sub(u64::try_from(steps).unwrap_or(u64::MAX));
-                self.set_position_state(dir, target, rem, true);
+                self.continue_leg(leg, steps, true);
             }
             return Some(j64);
         }
         let steps = self.move_full(u128::from(v) * u128::from(avail));
-        let rem = remaining.saturating_sub(u64::try_from(steps).unwrap_or(u64::MAX));
-        self.set_position_state(dir, target, rem, braking);
+        self.continue_leg(leg, steps, braking);
         Some(avail)
     }
 }
