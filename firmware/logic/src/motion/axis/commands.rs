@@ -249,6 +249,9 @@ impl Axis {
     /// position), then hold again unless asleep.
     pub fn on_chain_error(&mut self) {
         self.fault = Some(AxisFault::ChainError);
+        // The failed batch's replies never come, nor those of a batch
+        // planned behind it (the overlapped tick drops it unsent).
+        self.rb.in_flight = InFlight::EMPTY;
         if self.state == AxisState::Homing {
             self.end_homing(HomingError::Fault);
         }
@@ -339,6 +342,8 @@ impl Axis {
         self.rb.raw = None;
         self.rb.error = 0;
         self.rb.read = None;
+        // What the batches in flight read predates the setup.
+        self.rb.in_flight.drop_reads(None);
         self.stop.pending = None;
         self.limits.max_speed = 0;
         self.limits.acc = 0;

@@ -215,8 +215,14 @@ struct Readback {
     expected_at_read: i64,
     /// Following error at the last read (expected − actual), microsteps.
     error: i64,
-    /// What was read this tick (decoded in `absorb`).
+    /// What this tick's plan reads (moved into `in_flight` when the plan
+    /// is made).
     read: Option<Read>,
+    /// The batches planned and not yet absorbed, oldest first: one with a
+    /// tick that plans, clocks and absorbs a batch before the next plan;
+    /// two with the overlapped tick, which plans batch k + 1 while batch k
+    /// is on the bus.
+    in_flight: InFlight,
     status: Status,
     /// Tick of the last one-shot command, the last STATUS and ABS_POS reads
     /// (u64: never wraps, so the ordering checks hold for any uptime).
@@ -225,6 +231,59 @@ struct Readback {
     pos_at: u64,
     /// Tick at which the current setup began (a UVLO read after it is a new reset).
     setup_at: u64,
+}
+
+/// What a batch read, as the plan that sent it knew it: its replies are
+/// taken with these, however many plans came after it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct Sent {
+    /// The tick of the plan (the stamp of what it reads).
+    tick: u64,
+    read: Option<Read>,
+    /// Where the chip should be as the read reaches it.
+    expected: i64,
+    /// The clock-rate estimate's command sum and window epoch at the plan.
+    commanded: i64,
+    epoch: u32,
+}
+
+/// The batches in flight, oldest first (at most two: the overlapped tick's
+/// batch on the bus and the one planned behind it).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+struct InFlight([Option<Sent>; 2]);
+
+impl InFlight {
+    const EMPTY: InFlight = InFlight([None, None]);
+
+    /// A new plan's record (a third drops the oldest: a tick that planned
+    /// without ending its batch, whose replies never come).
+    fn push(&mut self, s: Sent) {
+        let [a, b] = &mut self.0;
+        if a.is_none() {
+            *a = Some(s);
+        } else if b.is_none() {
+            *b = Some(s);
+        } else {
+            *a = b.replace(s);
+        }
+    }
+
+    /// The oldest batch's record (its replies are being absorbed).
+    fn pop(&mut self) -> Option<Sent> {
+        let [a, b] = &mut self.0;
+        let s = a.take();
+        *a = b.take();
+        s
+    }
+
+    /// Forget what the batches in flight read of `kind` (`None`: every read).
+    fn drop_reads(&mut self, kind: Option<Read>) {
+        for s in self.0.iter_mut().flatten() {
+            if kind.is_none() || s.read == kind {
+                s.read = None;
+            }
+        }
+    }
 }
 
 /// The stop in progress.
@@ -299,8 +358,9 @@ type RampKey = (u32, u32, u8);
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 struct RegRead {
     reg: Register,
-    /// Command index of the GetParam in this tick's batch, once sent.
-    index: Option<usize>,
+    /// The plan's tick and the command index of the GetParam in its
+    /// batch, once sent.
+    index: Option<(u64, usize)>,
     /// The value and the tick it was read at.
     value: Option<(u32, u64)>,
 }
@@ -348,6 +408,7 @@ impl Axis {
                 expected_at_read: 0,
                 error: 0,
                 read: None,
+                in_flight: InFlight::EMPTY,
                 status: Status::IDLE,
                 sent_at: 0,
                 status_at: 0,

@@ -51,9 +51,27 @@ impl Axis {
             ok
         };
         self.plan_commands(&mut counted);
-        if !self.is_configured() {
-            return;
+        if self.is_configured() {
+            self.plan_spare_slots(used, leaves_hiz, &mut emit);
         }
+        let sent = Sent {
+            tick: self.tick,
+            read: self.rb.read.take(),
+            expected: self.rb.expected_at_read,
+            commanded: self.rate.commanded,
+            epoch: self.rate.epoch,
+        };
+        self.rb.in_flight.push(sent);
+    }
+
+    /// The slots `used` left: changed configuration registers, then an
+    /// extension-space register read.
+    fn plan_spare_slots(
+        &mut self,
+        mut used: usize,
+        leaves_hiz: bool,
+        emit: &mut impl FnMut(Command) -> bool,
+    ) {
         // Spare slots carry configuration registers that changed, each only
         // when the chip takes it ([`Axis::chip_takes`]): nothing starts the
         // chip this tick for a WS one, nothing ends HiZ for a WH one. So the
@@ -76,7 +94,7 @@ impl Axis {
                 let same_as_read =
                     r.reg == Register::AbsPos && self.rb.read == Some(Read::Position);
                 if !same_as_read && emit(Command::GetParam(r.reg)) {
-                    r.index = Some(used);
+                    r.index = Some((self.tick, used));
                 }
             }
         }
@@ -180,9 +198,9 @@ impl Axis {
     pub(super) fn rate_tick(&mut self) {
         let capped = self.rate.running.unsigned_abs() >= u64::from(self.limits.max_speed) << 10;
         if self.state == AxisState::Streaming && self.rate.steady && !capped {
-            self.rate.since_read = self.rate.since_read.saturating_add(self.rate.running);
+            self.rate.commanded = self.rate.commanded.wrapping_add(self.rate.running);
         } else {
-            self.rate.disarm();
+            self.rate.disarm_tick();
         }
     }
 
@@ -313,6 +331,9 @@ impl Axis {
         if self.rb.read == Some(Read::Position) {
             self.rb.read = None;
         }
+        // And those of the batches still in flight (the overlapped tick):
+        // their replies come after this write is planned.
+        self.rb.in_flight.drop_reads(Some(Read::Position));
     }
 
     pub(super) fn start_streaming(&mut self, emit: &mut impl FnMut(Command) -> bool) {

@@ -24,8 +24,16 @@ pub(super) struct ClockRate {
     pub(super) inv: u32,
     /// SPEED of the last `Run` (signed, as sent): what the chip runs at.
     pub(super) running: i64,
-    /// Sum of `running` over the ticks since the last position read.
-    pub(super) since_read: i64,
+    /// Sum of `running` over the planned ticks that count (wrapping): a
+    /// window's command is the difference of two reads' values (each
+    /// read's batch records it at its plan).
+    pub(super) commanded: i64,
+    /// `commanded` at the read that began the window, and its epoch.
+    pub(super) base: i64,
+    pub(super) base_epoch: u32,
+    /// Counts the plans that ended a window (a tick that did not count):
+    /// two reads bound a window only if no such plan came between them.
+    pub(super) epoch: u32,
     /// Window sums: commanded (SPEED · ticks) and moved (microsteps).
     pub(super) cmd: i64,
     pub(super) moved: i64,
@@ -58,7 +66,10 @@ impl ClockRate {
         ratio: 1 << 16,
         inv: 1 << 16,
         running: 0,
-        since_read: 0,
+        commanded: 0,
+        base: 0,
+        base_epoch: 0,
+        epoch: 0,
         cmd: 0,
         moved: 0,
         armed: false,
@@ -67,24 +78,40 @@ impl ClockRate {
         reads: 0,
     };
 
-    /// The window ends (the chip did something else than follow `Run`).
+    /// The window ends at a read (the chip did something else than follow
+    /// `Run` before it).
     pub(super) fn disarm(&mut self) {
         self.armed = false;
         self.reads = 0;
         self.cmd = 0;
         self.moved = 0;
-        self.since_read = 0;
+    }
+
+    /// The window ends at a plan: the tick before it does not count (and
+    /// no read before it bounds a window with a read after it).
+    pub(super) fn disarm_tick(&mut self) {
+        self.disarm();
+        self.epoch = self.epoch.wrapping_add(1);
         self.running = 0;
     }
 
     /// A position read while streaming: the chip moved `moved` microsteps
-    /// since the last one under the `since_read` commands.
-    pub(super) fn take(&mut self, moved: i64, tick_us: u32, step_shift: u32) {
-        if self.armed {
-            self.cmd = self.cmd.saturating_add(self.since_read);
+    /// since the last one; `commanded` and `epoch` are what the read's plan
+    /// recorded.
+    pub(super) fn take(
+        &mut self,
+        moved: i64,
+        (commanded, epoch): (i64, u32),
+        tick_us: u32,
+        step_shift: u32,
+    ) {
+        if self.armed && epoch == self.base_epoch {
+            let since = commanded.wrapping_sub(self.base);
+            self.cmd = self.cmd.saturating_add(since);
             self.moved = self.moved.saturating_add(moved);
         }
-        self.since_read = 0;
+        self.base = commanded;
+        self.base_epoch = epoch;
         self.armed = true;
         self.reads = self.reads.saturating_add(1);
         // A window covers RATE_WINDOW microsteps; after the first estimate

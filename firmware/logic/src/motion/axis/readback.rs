@@ -4,34 +4,45 @@
 use super::*;
 
 impl Axis {
-    /// Take this tick's replies for the axis's device.
+    /// Take the replies of the oldest batch in flight for the axis's device.
     pub fn absorb(&mut self, replies: &Replies, device: usize) {
+        let Some(sent) = self.rb.in_flight.pop() else {
+            return;
+        };
         if let Some(r) = self.ext_read.as_mut() {
-            if let Some(i) = r.index.take() {
-                if let Some(crate::powerstep::chain::Reply::Param(reg, v)) = replies.get(device, i)
-                {
-                    if reg == r.reg {
-                        r.value = Some((v, self.tick));
+            match r.index {
+                Some((at, i)) if at == sent.tick => {
+                    r.index = None;
+                    if let Some(crate::powerstep::chain::Reply::Param(reg, v)) =
+                        replies.get(device, i)
+                    {
+                        if reg == r.reg {
+                            r.value = Some((v, sent.tick));
+                        }
                     }
                 }
+                // Its batch's replies were lost: ask again.
+                Some((at, _)) if at < sent.tick => r.index = None,
+                _ => {}
             }
         }
-        match self.rb.read.take() {
+        match sent.read {
             Some(Read::Position) => {
                 if let Some(raw) = replies.param(device, Register::AbsPos) {
-                    self.take_position(raw);
+                    self.take_position(raw, &sent);
                 }
             }
             Some(Read::Status) => {
                 if let Some(s) = replies.status(device) {
-                    self.take_status(s);
+                    self.take_status(s, sent.tick);
                 }
             }
             None => {}
         }
     }
 
-    pub(super) fn take_position(&mut self, raw: u32) {
+    /// A position read of the batch `sent` describes.
+    fn take_position(&mut self, raw: u32, sent: &Sent) {
         if matches!(self.state, AxisState::Setup(_)) {
             return; // the chip's frame is being re-based
         }
@@ -46,36 +57,41 @@ impl Axis {
             rb.chip_pos += i64::from(delta);
             // Only while the chip follows: a chip still stopping or landing
             // when streaming began runs its own ramps.
-            let follows = (rb.expected_at_read - rb.chip_pos).abs() <= RATE_MAX_ERROR;
+            let follows = (sent.expected - rb.chip_pos).abs() <= RATE_MAX_ERROR;
             if self.state == AxisState::Streaming && rb.raw.is_some() && follows {
-                self.rate
-                    .take(i64::from(delta), self.cfg.tick_us, self.cfg.step.shift());
+                self.rate.take(
+                    i64::from(delta),
+                    (sent.commanded, sent.epoch),
+                    self.cfg.tick_us,
+                    self.cfg.step.shift(),
+                );
             } else {
                 self.rate.disarm();
             }
         }
         let rb = &mut self.rb;
         rb.raw = Some(raw);
-        rb.pos_at = self.tick;
+        rb.pos_at = sent.tick;
         // Measured in every state: when a move starts while the chip is
         // still stopping or landing, the correction starts at once.
         rb.error = if self.stop.zero {
             0
         } else {
-            rb.expected_at_read - rb.chip_pos
+            sent.expected - rb.chip_pos
         };
     }
 
-    pub(super) fn take_status(&mut self, s: Status) {
+    /// A STATUS read of the batch planned at tick `at`.
+    fn take_status(&mut self, s: Status, at: u64) {
         self.rb.status = s;
-        self.rb.status_at = self.tick;
+        self.rb.status_at = at;
         self.image.status_seen(s.command_error());
         if s.uvlo() {
             // Reset or undervoltage. In a setup, only a read issued after
             // the setup began reports a new one (the power-up flag, or the
             // one that started this setup, was cleared by the first read).
             let new = match self.state {
-                AxisState::Setup(_) => self.tick > self.rb.setup_at,
+                AxisState::Setup(_) => at > self.rb.setup_at,
                 _ => true,
             };
             if new {
