@@ -31,7 +31,31 @@ pub fn new_bridge_at(
         tick_us,
     );
     measure_24v_25c(&mut bridge);
+    bridge.set_overlapped(overlapped_from_env());
     bridge
+}
+
+std::thread_local! {
+    static OVERLAPPED: std::cell::Cell<Option<bool>> = const { std::cell::Cell::new(None) };
+}
+
+/// Whether the simulated bridges made on this thread tick overlapped
+/// (`Bridge::set_overlapped`: batch k on the bus while batch k + 1 is
+/// planned): as [`overlapped_in`] says, else `STEPBRIDGE_TICK_OVERLAP=1`
+/// in the environment (CI runs the motion suites so).
+pub fn overlapped_from_env() -> bool {
+    OVERLAPPED
+        .get()
+        .unwrap_or_else(|| std::env::var("STEPBRIDGE_TICK_OVERLAP").is_ok_and(|v| v == "1"))
+}
+
+/// Run `f` with the bridges it makes on this thread ticking overlapped
+/// (`on`) or not, whatever the environment says.
+pub fn overlapped_in<R>(on: bool, f: impl FnOnce() -> R) -> R {
+    let before = OVERLAPPED.replace(Some(on));
+    let r = f();
+    OVERLAPPED.set(before);
+    r
 }
 
 /// A bridge on `chain` as it boots from an empty settings page: factory

@@ -90,6 +90,14 @@ struct Truth {
     following: i64,
     moves: u64,
     lost: Vec<String>,
+    /// Each axis's profile position one tick ago: where the chip must be
+    /// now with the overlapped tick, whose profiles run one tick ahead of
+    /// the batch on the bus.
+    ahead: Vec<i64>,
+    /// Ticks each axis has been settled for: with the overlapped tick,
+    /// what the plan that settled it sent (a setup's last write, a Set
+    /// zero's ResetPos) is on the chip one tick later.
+    settled_ticks: Vec<u32>,
 }
 
 impl Truth {
@@ -99,8 +107,20 @@ impl Truth {
 
     /// Ticked every `tick_us` µs (a divisor of 1000).
     fn at(n: usize, settings: Settings, tick_us: u32) -> Truth {
+        Truth::ticked(
+            n,
+            settings,
+            tick_us,
+            host_tests::sim_bridge::overlapped_from_env(),
+        )
+    }
+
+    /// [`Truth::at`], the bridge's tick overlapped or not.
+    fn ticked(n: usize, settings: Settings, tick_us: u32, overlapped: bool) -> Truth {
+        let mut bridge = new_bridge_at(n, settings, BOARD, tick_us);
+        bridge.set_overlapped(overlapped);
         let mut t = Truth {
-            bridge: new_bridge_at(n, settings, BOARD, tick_us),
+            bridge,
             clock: SimClock::new(tick_us),
             expect: vec![
                 Expect::At {
@@ -116,6 +136,8 @@ impl Truth {
             following: 0,
             moves: 0,
             lost: Vec::new(),
+            ahead: vec![0; n],
+            settled_ticks: vec![0; n],
         };
         t.run(30);
         t
@@ -176,8 +198,19 @@ impl Truth {
                     c.received().last()
                 );
             }
+            self.settled_ticks[k] = if axis.is_settled() {
+                self.settled_ticks[k].saturating_add(1)
+            } else {
+                0
+            };
+            let profile = axis.profile_physical();
+            let now = if self.bridge.is_overlapped() {
+                std::mem::replace(&mut self.ahead[k], profile)
+            } else {
+                profile
+            };
             if axis.state() == AxisState::Streaming && !reset {
-                let e = axis.profile_physical() - wide;
+                let e = now - wide;
                 self.following = self.following.max(e.abs());
             }
         }
@@ -219,7 +252,8 @@ impl Truth {
 
     /// Send a request; update the oracle if it was accepted.
     fn request(&mut self, k: usize, req: Request) -> bool {
-        let at_rest = self.bridge.axis(k).is_some_and(|a| a.is_settled());
+        let at_rest = self.bridge.axis(k).is_some_and(|a| a.is_settled())
+            && (self.settled_ticks[k] >= 2 || !self.bridge.is_overlapped());
         let ok = self.bridge.request(k, req).is_ok();
 
         if !ok {
@@ -447,13 +481,26 @@ fn random_run_at(n: usize, sequences: usize, seed: u64, tick_us: u32) -> Truth {
 
 /// Chip k's oscillator `ppm` off, fast and slow in turn.
 fn random_run_with(n: usize, sequences: usize, seed: u64, tick_us: u32, ppm: i32) -> Truth {
+    let overlapped = host_tests::sim_bridge::overlapped_from_env();
+    random_run_ticked(n, sequences, seed, tick_us, ppm, overlapped)
+}
+
+/// [`random_run_with`], the bridge's tick overlapped or not.
+fn random_run_ticked(
+    n: usize,
+    sequences: usize,
+    seed: u64,
+    tick_us: u32,
+    ppm: i32,
+    overlapped: bool,
+) -> Truth {
     let mut settings = Settings::FACTORY;
     for a in settings.axes.iter_mut() {
         a.max_speed = 16_000;
         a.acc = 60_000;
         a.dec = 60_000;
     }
-    let mut t = Truth::at(n, settings, tick_us);
+    let mut t = Truth::ticked(n, settings, tick_us, overlapped);
     for k in 0..n {
         let e = if k % 2 == 0 { ppm } else { -ppm };
         chip_mut(&mut t.bridge, k).set_clock_error_ppm(e);
@@ -464,10 +511,11 @@ fn random_run_with(n: usize, sequences: usize, seed: u64, tick_us: u32, ppm: i32
         sequence(&mut t, &mut rng, seq, &mut counts);
     }
     println!(
-        "{n} chips at {} Hz, {sequences} sequences, {} moves, {} ms: lost {}, max overshoot {:.3} full steps, \
+        "{n} chips at {} Hz{}, {sequences} sequences, {} moves, {} ms: lost {}, max overshoot {:.3} full steps, \
          max following error {:.3} full steps; limit changes {}, stop+move {}, zero+move {}, \
          step-mode changes {}, chip resets {}, retargets {}",
         1_000_000 / tick_us,
+        if overlapped { " (overlapped)" } else { "" },
         t.moves,
         t.clock.now_ms(),
         t.lost.len(),
@@ -605,6 +653,30 @@ fn every_accepted_move_arrives_at_a_5_khz_tick() {
 fn every_accepted_move_arrives_on_eight_chips_at_a_5_khz_tick() {
     let t = random_run_at(8, 120, 0x0BAD_C0DE_7777, 200);
     assert_truth(&t);
+}
+
+#[test]
+fn every_accepted_move_arrives_with_the_overlapped_tick_at_1_khz() {
+    let t = random_run_ticked(8, 120, 0x0E1A_0000_1000, 1000, 0, true);
+    assert_truth(&t);
+}
+
+#[test]
+fn every_accepted_move_arrives_with_the_overlapped_tick_at_2_khz() {
+    let t = random_run_ticked(4, 120, 0x0E1A_0000_2000, 500, 0, true);
+    assert_truth(&t);
+}
+
+#[test]
+fn every_accepted_move_arrives_with_the_overlapped_tick_at_5_khz() {
+    let t = random_run_ticked(8, 120, 0x0E1A_0000_5000, 200, 0, true);
+    assert_truth(&t);
+}
+
+#[test]
+fn every_accepted_move_arrives_with_the_overlapped_tick_and_chip_oscillators_5_percent_off() {
+    let t = random_run_ticked(4, 150, 0x05C1_11A7_0005, TICK_US, 50_000, true);
+    assert_arrives_within(&t, 256);
 }
 
 // ------------------------------------------------ one defect, one test ----

@@ -39,7 +39,7 @@ use bridge_logic::powerstep::registers::{sign_extend_22, wrap_22, Register};
 use bridge_logic::powerstep::Command;
 use host_tests::clock::SimClock;
 use host_tests::rng::Rng;
-use host_tests::sim_bridge::{chip, chip_mut, new_bridge_at};
+use host_tests::sim_bridge::{chip, chip_mut, new_bridge_at, overlapped_in};
 use stepbridge_sim::{Fault, HomeCam, SimChain};
 
 const BOARD: PowerStage = PowerStage::REFERENCE;
@@ -120,6 +120,9 @@ struct AxisTruth {
     shaft: i64,
     /// The chip's receive count at the last observation.
     seen: u64,
+    /// Its receive counts at the last few tick ends (the overlapped tick:
+    /// the one batch after an event was planned before it).
+    ends: [u64; 4],
     /// Before an injected reset: the bridge re-bases ABS_POS near it.
     anchor: Option<i64>,
     asleep: bool,
@@ -252,6 +255,7 @@ impl World {
                 raw: 0,
                 shaft: 0,
                 seen: 0,
+                ends: [0; 4],
                 anchor: None,
                 asleep: false,
                 faulted: false,
@@ -415,6 +419,8 @@ impl World {
             a.raw = raw;
             a.shaft = shaft;
             a.seen = count;
+            a.ends.rotate_left(1);
+            a.ends[3] = count;
             // The end switch becoming pressed while the axis may move.
             let pressed = shaft <= a.edge;
             let pressed_edge = pressed && !a.pressed;
@@ -527,7 +533,17 @@ impl World {
                     }
                 }
                 Leave::Rest { seen, shaft: rest } => {
-                    let got = self.received_since(k, seen);
+                    // The overlapped tick: the batch after the event (the
+                    // first tick end past it) was planned before it.
+                    let from = if self.bridge.is_overlapped() {
+                        match self.ax[k].ends.iter().find(|&&e| e > seen) {
+                            Some(&e) => e,
+                            None => continue,
+                        }
+                    } else {
+                        seen
+                    };
+                    let got = self.received_since(k, from);
                     let bad: Vec<_> = got.iter().filter(|c| motion(c)).copied().collect();
                     if !bad.is_empty() {
                         let s = format!(
@@ -1093,13 +1109,14 @@ fn random_run(n: usize, sequences: usize, seed: u64, tick_us: u32) -> World {
     w.counts.trips = u64::from(w.bridge.diag.watchdog_trips);
     let c = &w.counts;
     println!(
-        "seed {seed:#x}: {n} chips at {} Hz, {sequences} sequences, watchdog {watchdog:?}, {} ms: violations {}; \
+        "seed {seed:#x}: {n} chips at {} Hz{}, {sequences} sequences, watchdog {watchdog:?}, {} ms: violations {}; \
          moves {} (arrived {}), homings {} (refused at the start {}), outcomes [done, not found, \
          timeout, disabled, aborted, fault, not ready, stuck, unbounded] {:?}, moves after done {} \
          ({} uninterrupted, {} of them arrived), position 0 at most {} µsteps off the edge, at most {} µsteps into the cam; \
          BINx presses {}, WH writes asleep {}, chip resets {}, watchdog trips {}, end-switch stops {}, \
          interruptions [stop, soft, zero, sleep, abort, reset] {:?}",
         1_000_000 / tick_us,
+        if w.bridge.is_overlapped() { " (overlapped)" } else { "" },
         w.now(),
         w.violations.len(),
         c.moves,
@@ -1180,6 +1197,23 @@ fn nothing_moves_unasked_and_every_move_arrives_at_a_2_khz_tick() {
 #[test]
 fn nothing_moves_unasked_and_every_move_arrives_at_a_5_khz_tick() {
     runs(4, 40, &[0x5555_AAAA_5555], 200);
+}
+
+#[test]
+fn nothing_moves_unasked_and_every_move_arrives_with_the_overlapped_tick_at_1_khz() {
+    overlapped_in(true, || {
+        runs(4, 60, &[0x0E1A_0A0A_1000, 0x0E1A_0B0B_1000], 1000)
+    });
+}
+
+#[test]
+fn nothing_moves_unasked_and_every_move_arrives_with_the_overlapped_tick_at_2_khz() {
+    overlapped_in(true, || runs(4, 40, &[0x0E1A_0A0A_2000], 500));
+}
+
+#[test]
+fn nothing_moves_unasked_and_every_move_arrives_with_the_overlapped_tick_at_5_khz() {
+    overlapped_in(true, || runs(4, 40, &[0x0E1A_0A0A_5000], 200));
 }
 
 /// More seeds than CI runs (`cargo test -p host-tests --test nothing_unasked

@@ -320,6 +320,8 @@ pub struct Bridge<B: ChainBus> {
     /// Per axis: bit per bus that last started motion on it.
     moved_by: [u8; MAX_DEVICES],
     timing: TickTiming,
+    /// The overlapped tick's state ([`Bridge::tick_overlapped`]).
+    overlap: pipeline::Overlap,
     reset_cause: ResetCause,
     build_id: u32,
     /// The Modbus server's counters as last handed over, and their values
@@ -476,6 +478,7 @@ impl<B: ChainBus> Bridge<B> {
             watch: [BusWatch::default(); WATCHED_BUSES],
             moved_by: [0; MAX_DEVICES],
             timing: TickTiming::default(),
+            overlap: pipeline::Overlap::new(),
             reset_cause: ResetCause::Unknown,
             build_id: 0,
             modbus: ModbusStats::default(),
@@ -705,6 +708,10 @@ impl<B: ChainBus> Bridge<B> {
     /// DMA calls itself, one tick's end right before the next one's begin
     /// ([`Bridge::tick_pipelined`] does that).
     pub fn tick(&mut self, now_ms: u64) {
+        if self.overlap.blocking {
+            self.tick_overlapped_blocking(now_ms);
+            return;
+        }
         if !self.models_tick(now_ms) {
             return;
         }

@@ -23,8 +23,46 @@
 //! batch that never completes on its own (a timeout), or every tick after
 //! it is skipped.
 
+//! # The overlapped tick
+//!
+//! [`Bridge::tick_overlapped`] puts batch k on the bus first, planned by
+//! tick k − 1, and then absorbs batch k − 1 and plans batch k + 1 while
+//! batch k is on the bus: a period needs the longer of the computation and
+//! the batch, not their sum. The price is one tick: each plan works from
+//! the read-back of the batch before the one on the bus, and a command
+//! reaches the chip one tick later (each axis keeps its batches' reads
+//! apart, `motion::axis`). A tick without a planned batch (the first one,
+//! or after a failed batch, whose follower is dropped unsent) plans one and
+//! starts nothing.
+
 use super::Bridge;
-use crate::powerstep::chain::{BatchState, ChainBus, Plan};
+use crate::powerstep::chain::{BatchState, ChainBus, Frames, Plan, MAX_DEVICES, MAX_WINDOWS};
+
+/// The overlapped tick's state.
+#[derive(Clone, Debug)]
+pub(super) struct Overlap {
+    /// [`Bridge::tick`] runs overlapped on its blocking bus (the
+    /// simulators: the batch is clocked at the tick, its replies kept for
+    /// the next one).
+    pub(super) blocking: bool,
+    /// A planned batch waits for the next tick.
+    ready: bool,
+    /// The blocking variant's batch clocked at the last tick (a failed one
+    /// was ended in it), and its replies.
+    done: bool,
+    rx: Frames,
+}
+
+impl Overlap {
+    pub(super) const fn new() -> Overlap {
+        Overlap {
+            blocking: false,
+            ready: false,
+            rx: [[0; MAX_DEVICES]; MAX_WINDOWS],
+            done: false,
+        }
+    }
+}
 
 /// What [`Bridge::tick_pipelined`] did.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -75,6 +113,91 @@ impl<B: ChainBus> Bridge<B> {
                 PipelinedTick::StartFailed
             }
         }
+    }
+
+    /// One overlapped control tick at `now_ms` (module docs): `previous`
+    /// is the batch started by the last tick; the batch planned by it is
+    /// handed to `start` at once, then `previous` is absorbed and the next
+    /// batch planned. A failed batch drops the one planned behind it (every
+    /// axis sets its chip up again; the next tick plans anew).
+    pub fn tick_overlapped(
+        &mut self,
+        now_ms: u64,
+        previous: BatchState<'_, B::Error>,
+        start: impl FnOnce(&Plan, &mut B) -> Result<(), B::Error>,
+    ) -> PipelinedTick {
+        let decoded = match previous {
+            BatchState::Running => {
+                self.timing.overruns = self.timing.overruns.saturating_add(1);
+                return PipelinedTick::Overrun;
+            }
+            BatchState::Done(rx) => Some(self.group.end_launched(&mut self.chain, rx).is_ok()),
+            BatchState::Idle => None,
+        };
+        let ready = core::mem::take(&mut self.overlap.ready) && decoded != Some(false);
+        let started = ready.then(|| {
+            let plan = self.group.launch();
+            match self.chain.begin(plan) {
+                Ok(()) => start(plan, self.chain.bus_mut()).map_err(Some),
+                Err(_) => Err(None),
+            }
+        });
+        if let Some(ok) = decoded {
+            self.group.absorb_decoded(ok);
+            self.after_batch(ok);
+        }
+        let started = match started {
+            Some(Err(e)) => {
+                // Not on the bus: as a batch that failed (a refusal by the
+                // driver puts the chain out of step, as a failed transfer).
+                if let Some(e) = e {
+                    let _ = self.group.end_launched(&mut self.chain, Err(e));
+                }
+                self.group.absorb_decoded(false);
+                self.after_batch(false);
+                Some(false)
+            }
+            Some(Ok(())) => Some(true),
+            None => None,
+        };
+        self.overlap.ready = self.tick_begin(now_ms);
+        match started {
+            Some(true) => PipelinedTick::Started,
+            Some(false) => PipelinedTick::StartFailed,
+            None => PipelinedTick::NoBatch,
+        }
+    }
+
+    /// [`Bridge::tick`] runs overlapped (`on`): each tick clocks the batch
+    /// the previous one planned through the blocking bus and keeps its
+    /// replies for the next ([`Bridge::tick_overlapped`]). For simulated
+    /// chains, which then see the firmware's timing.
+    pub fn set_overlapped(&mut self, on: bool) {
+        self.overlap.blocking = on;
+    }
+
+    /// [`Bridge::tick`] runs overlapped ([`Bridge::set_overlapped`]).
+    pub fn is_overlapped(&self) -> bool {
+        self.overlap.blocking
+    }
+
+    pub(super) fn tick_overlapped_blocking(&mut self, now_ms: u64) {
+        let rx = self.overlap.rx;
+        let previous = if core::mem::take(&mut self.overlap.done) {
+            BatchState::Done(Ok(&rx))
+        } else {
+            BatchState::Idle
+        };
+        let mut out = self.overlap.rx;
+        let mut clocked = false;
+        self.tick_overlapped(now_ms, previous, |plan, bus| {
+            let r = crate::powerstep::chain::clock_windows(bus, plan, plan.devices(), &mut out);
+            clocked = r.is_ok();
+            r
+        });
+        self.overlap.rx = out;
+        // A batch that failed was ended in the tick.
+        self.overlap.done = clocked;
     }
 
     /// Control ticks that overran: their own computation took longer than

@@ -15,7 +15,11 @@ pub struct AxisGroup {
     axes: Vec<Axis, MAX_DEVICES>,
     /// Reused every tick (no copies of the frames on the control path).
     batch: Batch,
-    plan: Plan,
+    /// Two plans: the one [`AxisGroup::prepare`] makes and, for the
+    /// overlapped tick, the one on the bus ([`AxisGroup::launch`]).
+    plans: (Plan, Plan),
+    /// `plans.1` is the one being made.
+    second: bool,
     replies: Replies,
 }
 
@@ -45,7 +49,8 @@ impl AxisGroup {
         AxisGroup {
             axes: Vec::new(),
             batch: Batch::new(0),
-            plan: Plan::default(),
+            plans: (Plan::default(), Plan::default()),
+            second: false,
             replies: Replies::default(),
         }
     }
@@ -80,6 +85,15 @@ impl AxisGroup {
         self.axes.iter().all(|a| a.is_settled())
     }
 
+    /// The plan being made (`making`) or the other one.
+    fn slot(&self, making: bool) -> &Plan {
+        if self.second == making {
+            &self.plans.1
+        } else {
+            &self.plans.0
+        }
+    }
+
     /// First half of a tick: every axis plans its commands; one plan for the chain.
     pub fn prepare(&mut self) -> Result<&Plan, ScheduleError> {
         let batch = &mut self.batch;
@@ -87,8 +101,48 @@ impl AxisGroup {
         for (d, axis) in self.axes.iter_mut().enumerate() {
             axis.plan(|cmd| batch.push(d, cmd).is_ok());
         }
-        self.plan.schedule(&self.batch)?;
-        Ok(&self.plan)
+        let plan = if self.second {
+            &mut self.plans.1
+        } else {
+            &mut self.plans.0
+        };
+        plan.schedule(&self.batch)?;
+        Ok(plan)
+    }
+
+    /// The overlapped tick: the plan of the last [`AxisGroup::prepare`]
+    /// goes on the bus (its replies are [`AxisGroup::end_launched`]'s), and
+    /// the next prepare makes the other one.
+    pub fn launch(&mut self) -> &Plan {
+        self.second = !self.second;
+        self.slot(false)
+    }
+
+    /// The plan [`AxisGroup::launch`] put on the bus.
+    pub fn launched(&self) -> &Plan {
+        self.slot(false)
+    }
+
+    /// The overlapped tick: decode what came back for the launched plan
+    /// (or the bus error that cut it short); [`AxisGroup::absorb_decoded`]
+    /// gives it to the axes.
+    pub fn end_launched<B: ChainBus>(
+        &mut self,
+        chain: &mut Chain<B>,
+        rx: Result<&Frames, B::Error>,
+    ) -> Result<(), ChainError<B::Error>> {
+        let plan = if self.second {
+            &self.plans.0
+        } else {
+            &self.plans.1
+        };
+        chain.end(plan, rx, &mut self.replies)
+    }
+
+    /// Every axis takes the replies [`AxisGroup::end_launched`] decoded
+    /// (`ok`), or sets its chip up again (the batch failed).
+    pub fn absorb_decoded(&mut self, ok: bool) {
+        self.absorb_result(ok);
     }
 
     /// Second half of a tick: every axis takes its replies.
@@ -109,7 +163,7 @@ impl AxisGroup {
     ) -> Result<TickReport, ChainError<B::Error>> {
         let report = self.tick_begin(chain)?;
         let mut rx: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS];
-        let result = chain.clock(&self.plan, &mut rx);
+        let result = chain.clock(self.slot(true), &mut rx);
         self.tick_end(chain, result.map(|()| &rx)).map(|()| report)
     }
 
@@ -125,20 +179,21 @@ impl AxisGroup {
             self.absorb_result(false);
             return Err(ChainError::Schedule(e));
         }
-        if let Err(e) = chain.begin(&self.plan) {
+        let plan = self.slot(true);
+        if let Err(e) = chain.begin(plan) {
             self.absorb_result(false);
             return Err(e);
         }
         Ok(TickReport {
-            windows: self.plan.windows(),
-            bytes: self.plan.bytes(),
-            sync_window: self.plan.sync_window(),
+            windows: plan.windows(),
+            bytes: plan.bytes(),
+            sync_window: plan.sync_window(),
         })
     }
 
     /// The plan of the last [`AxisGroup::tick_begin`].
     pub fn plan(&self) -> &Plan {
-        &self.plan
+        self.slot(true)
     }
 
     /// Second half of an asynchronous tick: what came back for the plan of
@@ -149,7 +204,12 @@ impl AxisGroup {
         chain: &mut Chain<B>,
         rx: Result<&Frames, B::Error>,
     ) -> Result<(), ChainError<B::Error>> {
-        let result = chain.end(&self.plan, rx, &mut self.replies);
+        let plan = if self.second {
+            &self.plans.1
+        } else {
+            &self.plans.0
+        };
+        let result = chain.end(plan, rx, &mut self.replies);
         self.absorb_result(result.is_ok());
         result
     }

@@ -104,6 +104,7 @@ impl Axis {
         // the chip is, and when homing ends (however it ends) the axis rests
         // where the chip stopped until a new motion command.
         self.profile.set_position_fine(self.chip_fine());
+        self.profile_jumped();
         self.homing = Some(Homing::start(params, pressed, self.rb.chip_pos, self.tick));
         self.homing_ramps = true;
         self.state = AxisState::Homing;
@@ -181,9 +182,11 @@ impl Axis {
         self.speed_div = units::speed_divisor(self.cfg.tick_us, shift);
         if self.stop.zero {
             self.profile.set_position(0);
+            self.profile_jumped();
         } else {
             // Exactly where the chip is, in the new unit.
             self.profile.set_position_fine(self.chip_fine());
+            self.profile_jumped();
         }
         self.limits.backstop = (0, 0);
         if !matches!(self.state, AxisState::Setup(_) | AxisState::Idle) {
@@ -339,6 +342,7 @@ impl Axis {
             self.stop.zero = false;
         }
         self.profile.set_position_fine(self.chip_fine());
+        self.profile_jumped();
         self.rb.raw = None;
         self.rb.error = 0;
         self.rb.read = None;

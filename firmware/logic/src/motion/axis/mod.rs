@@ -239,9 +239,13 @@ struct Readback {
 struct Sent {
     /// The tick of the plan (the stamp of what it reads).
     tick: u64,
+    /// The plan sent more than its read.
+    commands: bool,
     read: Option<Read>,
-    /// Where the chip should be as the read reaches it.
-    expected: i64,
+    /// Where the chip should be as the read reaches it (`None`: the
+    /// profile has jumped since, to where the chip is: a following error
+    /// against the old profile means nothing).
+    expected: Option<i64>,
     /// The clock-rate estimate's command sum and window epoch at the plan.
     commanded: i64,
     epoch: u32,
@@ -274,6 +278,19 @@ impl InFlight {
         let s = a.take();
         *a = b.take();
         s
+    }
+
+    /// A batch in flight carries commands (not only its read): until its
+    /// replies are in, the chip may not have them.
+    fn commands(&self) -> bool {
+        self.0.iter().flatten().any(|s| s.commands)
+    }
+
+    /// The profile jumped: no batch in flight measures a following error.
+    fn void_expected(&mut self) {
+        for s in self.0.iter_mut().flatten() {
+            s.expected = None;
+        }
     }
 
     /// Forget what the batches in flight read of `kind` (`None`: every read).
@@ -497,7 +514,7 @@ impl Axis {
     }
     /// Nothing moving: profile settled, chip landed and confirmed.
     pub fn is_settled(&self) -> bool {
-        self.state == AxisState::Idle && self.profile.is_settled()
+        self.state == AxisState::Idle && self.profile.is_settled() && !self.rb.in_flight.commands()
     }
     /// Every register the bridge configures has been written since the
     /// chip's last reset.

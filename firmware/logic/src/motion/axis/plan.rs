@@ -28,6 +28,14 @@ impl Axis {
         units::shr_i128_to_i64(fine, shift)
     }
 
+    /// The profile jumped (re-based to where the chip is, or to 0): the
+    /// reads in flight and this tick's measure no following error against
+    /// the old profile; this tick's read expects the new one.
+    pub(super) fn profile_jumped(&mut self) {
+        self.rb.in_flight.void_expected();
+        self.rb.expected_at_read = self.profile_physical();
+    }
+
     pub(super) fn target_physical(&self) -> i64 {
         logical_to_physical(
             self.required_position(),
@@ -39,6 +47,12 @@ impl Axis {
     /// Emit this tick's commands for the axis's chip (read-back first).
     /// `emit` returns false when the batch is full; the axis then retries next tick.
     pub fn plan(&mut self, mut emit: impl FnMut(Command) -> bool) {
+        let mut sent = 0usize;
+        let mut emit = |cmd: Command| {
+            let ok = emit(cmd);
+            sent += usize::from(ok);
+            ok
+        };
         let mut used = 0usize;
         let mut leaves_hiz = false;
         let mut counted = |cmd: Command| {
@@ -54,10 +68,12 @@ impl Axis {
         if self.is_configured() {
             self.plan_spare_slots(used, leaves_hiz, &mut emit);
         }
+        let read = self.rb.read.take();
         let sent = Sent {
             tick: self.tick,
-            read: self.rb.read.take(),
-            expected: self.rb.expected_at_read,
+            commands: sent > usize::from(read.is_some()),
+            read,
+            expected: Some(self.rb.expected_at_read),
             commanded: self.rate.commanded,
             epoch: self.rate.epoch,
         };
@@ -370,10 +386,12 @@ impl Axis {
             self.rb.error = 0;
             // Keep whatever was asked for since Set zero, in the new coordinates.
             self.profile.rebase_fine(0);
+            self.profile_jumped();
         } else if self.stop.after == AfterStop::Hold {
             // Exactly where the chip is, even between two logical steps: the
             // next move (maybe given while stopping) starts from there.
             self.profile.rebase_fine(self.chip_fine());
+            self.profile_jumped();
             self.rb.error = 0;
         }
         match self.stop.after {
@@ -385,6 +403,7 @@ impl Axis {
                 if self.profile.mode() == Mode::Hold {
                     // Defensive: hold on the step the chip reached.
                     self.profile.set_position_fine(self.chip_fine());
+                    self.profile_jumped();
                 }
                 self.land(emit);
             }
