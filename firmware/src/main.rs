@@ -48,7 +48,11 @@
 //!   absorbed), then this tick is planned and its batch started; the bytes
 //!   shift while the CPU does other work. Batch k's replies are absorbed at
 //!   tick k + 1's start, before batch k + 1 is planned: the blocking
-//!   tick's order, one period later. A batch still on the bus when the
+//!   tick's order, one period later. A chain whose computation and batch
+//!   in a row do not fit the period (`rate::fit`) ticks overlapped
+//!   instead (`Bridge::tick_overlapped`, the same call): the batch the
+//!   previous tick planned starts first, then the one before it is
+//!   absorbed and the next planned while it shifts. A batch still on the bus when the
 //!   tick comes skips the tick (an overrun in the diagnostics); one past
 //!   its deadline (2 × nominal + 100 µs) is stopped and ends as a chain
 //!   error. Then STBY low for good once the bridge declares the chain dead, LED,
@@ -383,19 +387,30 @@ mod app {
             settings,
             source,
             TICK_HZ,
-            platform::tick_need_ns,
+            platform::tick_need,
         );
         match bridge.chain_error() {
             None => info!("chain: {=usize} powerSTEP01", bridge.axes()),
             Some(e) => error!("chain: detection failed ({}), running with 0 axes", e),
         }
+        let need = platform::tick_need(bridge.axes());
         if rate.derated {
             warn!(
-                "control tick: {=u32} Hz instead of {=u32} Hz: {=usize} chips need {=u64} us per tick",
+                "control tick: {=u32} Hz instead of {=u32} Hz: {=usize} chips need {=u64} us per tick ({=u64} us overlapped)",
                 rate.hz,
                 TICK_HZ,
                 bridge.axes(),
-                platform::tick_need_ns(bridge.axes()) / 1000
+                need.serial_ns / 1000,
+                need.overlapped_ns / 1000
+            );
+        }
+        if rate.overlapped {
+            info!(
+                "control tick: overlapped at {=u32} Hz: {=usize} chips need {=u64} us in a row, {=u64} us overlapped",
+                rate.hz,
+                bridge.axes(),
+                need.serial_ns / 1000,
+                need.overlapped_ns / 1000
             );
         }
         bridge.set_reset_cause(boot.reset_cause);
@@ -508,8 +523,9 @@ mod app {
             }
             *cx.local.chain_failing = result.is_err();
         }
-        // End it, plan this tick, start its batch (Bridge::tick_pipelined);
-        // a batch still on the bus skips the tick as an overrun.
+        // End it, plan this tick, start its batch (Bridge::tick_pipelined;
+        // overlapped: start the planned batch, end the previous one, plan
+        // the next); a batch still on the bus skips the tick as an overrun.
         let (on, dead, io) = cx.shared.bridge.lock(|b| {
             // The bridge's handle asks the one driver to start the batch.
             b.tick_pipelined(now, previous, |plan, link| {

@@ -31,8 +31,19 @@ pub fn new_bridge_at(
         tick_us,
     );
     measure_24v_25c(&mut bridge);
-    bridge.set_overlapped(overlapped_from_env());
+    if overlapped_from_env() {
+        tick_overlapped(&mut bridge, n, tick_us);
+    }
     bridge
+}
+
+/// Tick `bridge` (`n` chips, every `tick_us` µs) overlapped, its batches
+/// within the windows the board's period would hold (`rate::fit`), as the
+/// firmware runs a chain that needs it.
+pub fn tick_overlapped(bridge: &mut Bridge<SimChain>, n: usize, tick_us: u32) {
+    bridge.set_overlapped(true);
+    let windows = bridge_logic::rate::fit(1_000_000 / tick_us.max(1), n).windows;
+    bridge.set_window_budget(usize::from(windows));
 }
 
 std::thread_local! {

@@ -117,8 +117,12 @@ impl Truth {
 
     /// [`Truth::at`], the bridge's tick overlapped or not.
     fn ticked(n: usize, settings: Settings, tick_us: u32, overlapped: bool) -> Truth {
-        let mut bridge = new_bridge_at(n, settings, BOARD, tick_us);
-        bridge.set_overlapped(overlapped);
+        let mut bridge = host_tests::sim_bridge::overlapped_in(false, || {
+            new_bridge_at(n, settings, BOARD, tick_us)
+        });
+        if overlapped {
+            host_tests::sim_bridge::tick_overlapped(&mut bridge, n, tick_us);
+        }
         let mut t = Truth {
             bridge,
             clock: SimClock::new(tick_us),
@@ -230,8 +234,10 @@ impl Truth {
         let states: Vec<String> = (0..self.axes())
             .map(|k| {
                 let a = self.bridge.axis(k).expect("axis");
+                let all: Vec<_> = chip(&self.bridge, k).received().collect();
+                let last = &all[all.len().saturating_sub(6)..];
                 format!(
-                    "axis {k}: {:?} {:?} v={} limits {:?} chip {}",
+                    "axis {k}: {:?} {:?} v={} limits {:?} chip {} last {last:?}",
                     a.state(),
                     a.profile().mode(),
                     a.profile().velocity(),

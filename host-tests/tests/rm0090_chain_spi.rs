@@ -300,27 +300,58 @@ struct Wire {
     chain: SharedChain,
     hw: ChainHandle,
     rx: Frames,
-    now_ms: u64,
+    now_us: u64,
+    tick_us: u32,
+    /// Interrupt latency the model serves TIM7 and DMA2 with, ns.
+    latency_ns: u64,
 }
 
 impl Wire {
     fn new(n: usize) -> Wire {
         let hw = ChainHandle::new(SimChain::new(n));
         let chain = SharedChain::new(ChainSpi::new(hw.clone(), clocks()));
-        let mut bridge = Bridge::new(
+        let bridge = Bridge::new(
             chain.clone(),
             PowerStage::REFERENCE,
             Settings::FACTORY,
             SettingsSource::Stored,
             TICK_US,
         );
+        Wire::on(bridge, chain, hw, TICK_US, 300)
+    }
+
+    /// The firmware's `init`: the rate (and whether the tick overlaps) as
+    /// `rate::fit` says for `n` chips in a `build_hz` build, 1 µs of
+    /// interrupt latency (what the fit allows for).
+    fn fitted(n: usize, settings: Settings, build_hz: u32) -> (Wire, bridge_logic::rate::Rate) {
+        let hw = ChainHandle::new(SimChain::new(n));
+        let chain = SharedChain::new(ChainSpi::new(hw.clone(), clocks()));
+        let (bridge, rate) = Bridge::new_fitted(
+            chain.clone(),
+            PowerStage::REFERENCE,
+            settings,
+            SettingsSource::Stored,
+            build_hz,
+        );
+        (Wire::on(bridge, chain, hw, rate.us, 1000), rate)
+    }
+
+    fn on(
+        mut bridge: Bridge<SharedChain>,
+        chain: SharedChain,
+        hw: ChainHandle,
+        tick_us: u32,
+        latency_ns: u64,
+    ) -> Wire {
         bridge.on_analog(AnalogSample::NOMINAL_24V_25C);
         Wire {
             bridge,
             chain,
             hw,
             rx: EMPTY,
-            now_ms: 0,
+            now_us: 0,
+            tick_us,
+            latency_ns,
         }
     }
 
@@ -328,18 +359,22 @@ impl Wire {
     /// `tick_pipelined` starting the next batch), then the period runs on
     /// the model and the chips.
     fn tick(&mut self) {
-        self.now_ms += 1;
-        let now_us = self.now_ms * 1000;
+        self.now_us += u64::from(self.tick_us);
+        let (now_us, lat) = (self.now_us, self.latency_ns);
         let hw = &self.hw;
-        self.chain.with(|d| run_until(hw, d, now_us, 300));
+        self.chain.with(|d| run_until(hw, d, now_us, lat));
         let rx = &mut self.rx;
         let previous = self.chain.with(|d| d.poll(now_us, rx));
         self.bridge
-            .tick_pipelined(self.now_ms, previous, |plan, link| {
+            .tick_pipelined(now_us / 1000, previous, |plan, link| {
                 link.with(|d| d.start(plan, now_us))
             });
-        self.chain.with(|d| run_until(hw, d, now_us + 999, 300));
-        self.hw.model_mut().chain.advance(u64::from(TICK_US) * 1000);
+        let end = now_us + u64::from(self.tick_us) - 1;
+        self.chain.with(|d| run_until(hw, d, end, lat));
+        self.hw
+            .model_mut()
+            .chain
+            .advance(u64::from(self.tick_us) * 1000);
     }
 }
 
@@ -419,6 +454,95 @@ fn the_bridges_chain_bus_asks_the_driver_that_runs_the_batches() {
     assert_eq!(hw.model().windows.len(), before + 1);
     assert_eq!(hw.model().windows.last().unwrap().rx, rx);
     clean(&hw);
+}
+
+// ------------------------------------- 8 chips at 5 kHz, overlapped --
+
+/// Eight chips in a 5 kHz build tick overlapped at 5 kHz (`rate::fit`):
+/// `ticks` control ticks through driver and model (1 µs interrupt
+/// latency), every axis moving to random targets one after the other.
+/// Returns (moves, overruns, the most windows of a tick); panics on a
+/// move that did not arrive.
+fn overlapped_run(ticks: u64, seed: u64) -> (u64, u32, usize) {
+    use bridge_logic::motion::axis::logical_to_physical;
+    use bridge_logic::powerstep::registers::wrap_22;
+    let mut settings = Settings::FACTORY;
+    for a in settings.axes.iter_mut() {
+        a.max_speed = 16_000;
+        a.acc = 60_000;
+        a.dec = 60_000;
+    }
+    let (mut w, rate) = Wire::fitted(8, settings, 5000);
+    assert_eq!(
+        (rate.hz, rate.overlapped, rate.derated),
+        (5000, true, false)
+    );
+    assert!(w.bridge.is_overlapped());
+    let mut rng = host_tests::rng::Rng(seed);
+    let mut target: [Option<i32>; 8] = [None; 8];
+    let mut moves = 0u64;
+    let mut most_windows = 0;
+    for t in 0..ticks {
+        w.tick();
+        // The model's log of windows, one tick's worth at a time.
+        most_windows = most_windows.max(w.hw.model().windows.len());
+        w.hw.model_mut().windows.clear();
+        if t < 200 {
+            continue; // the set-up
+        }
+        for (k, target) in target.iter_mut().enumerate() {
+            let Some(a) = w.bridge.axis(k) else { continue };
+            if !a.is_settled() {
+                continue;
+            }
+            if let Some(p) = *target {
+                // Arrived: the chip where the move said, exactly.
+                let mode = settings.axes[k].step_mode;
+                let phys = logical_to_physical(i64::from(p), mode, PowerStage::REFERENCE.step);
+                let chip = w.hw.model().chain.device(k).unwrap().abs_pos();
+                assert_eq!(
+                    wrap_22(chip),
+                    wrap_22(phys as i32),
+                    "axis {k} at tick {t}: move to {p}"
+                );
+                assert_eq!(w.bridge.query(k, Query::Position), Some(Value::I32(p)));
+            }
+            if rng.below(8) != 0 {
+                continue; // a pause at rest
+            }
+            let p = rng.range(0, 40_000) as i32 - 20_000;
+            let _ = w.bridge.request(k, Request::SetMode(4));
+            let _ = w.bridge.request(k, Request::RunSleep(1));
+            w.bridge.request(k, Request::SetPosition(p)).unwrap();
+            *target = Some(p);
+            moves += 1;
+        }
+    }
+    assert_eq!(w.bridge.diag.chain_errors, 0);
+    clean(&w.hw);
+    (moves, w.bridge.tick_overruns(), most_windows)
+}
+
+#[test]
+fn eight_chips_at_5_khz_tick_overlapped_without_an_overrun() {
+    let (moves, overruns, windows) = overlapped_run(20_000, 0x0E1A_5000_0008);
+    assert!(moves > 8, "{moves} moves");
+    assert_eq!(overruns, 0);
+    // The rate's budget: a batch of 8 chips at 5 kHz takes 5 windows.
+    assert!(windows <= 5, "a tick of {windows} windows");
+}
+
+/// Issue 22's run: 10⁶ ticks (200 s of motion at 5 kHz; `cargo test
+/// --release -p host-tests --test rm0090_chain_spi -- --ignored million`,
+/// CI runs it).
+#[test]
+#[ignore]
+fn a_million_overlapped_ticks_of_8_chips_at_5_khz_never_overrun() {
+    let (moves, overruns, windows) = overlapped_run(1_000_000, 0x0E1A_5000_1000);
+    println!(
+        "RESULT 10^6 overlapped ticks, 8 chips at 5 kHz: {moves} moves arrived, {overruns} overruns, at most {windows} windows a tick"
+    );
+    assert_eq!(overruns, 0);
 }
 
 // ------------------------------------------- the rate fit's bus part --

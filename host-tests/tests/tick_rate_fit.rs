@@ -19,7 +19,7 @@ fn windows_of_one_detection(n: usize) -> u64 {
 }
 
 #[test]
-fn eight_chips_in_a_5_khz_build_run_at_the_fitted_rate_after_one_detection() {
+fn eight_chips_in_a_5_khz_build_run_overlapped_at_the_fitted_rate_after_one_detection() {
     let (b, r) = Bridge::new_fitted(
         SimChain::new(8),
         PowerStage::REFERENCE,
@@ -28,7 +28,8 @@ fn eight_chips_in_a_5_khz_build_run_at_the_fitted_rate_after_one_detection() {
         5000,
     );
     assert_eq!(r, rate::fit(5000, 8));
-    assert!(r.derated, "8 chips do not fit 5 kHz");
+    assert!(!r.derated, "8 chips fit 5 kHz overlapped");
+    assert!(r.overlapped && b.is_overlapped());
     assert_eq!(b.axes(), 8);
     assert_eq!(b.chain().bus().windows(), windows_of_one_detection(8));
 }
@@ -43,6 +44,7 @@ fn a_chain_that_fits_keeps_the_build_rate() {
         5000,
     );
     assert_eq!((r.hz, r.us, r.derated), (5000, 200, false));
+    assert!(!r.overlapped && !b.is_overlapped(), "4 chips fit in a row");
     assert_eq!(b.axes(), 4);
 }
 
@@ -55,9 +57,12 @@ fn a_platform_with_a_costlier_tick_fits_its_own_cost() {
         Settings::FACTORY,
         SettingsSource::Stored,
         5000,
-        |n| 20_000 + 45_000 * n as u64,
+        |n| rate::Need::serial(20_000 + 45_000 * n as u64),
     );
-    assert_eq!((r.hz, r.us, r.derated), (2500, 400, true));
+    assert_eq!(
+        (r.hz, r.us, r.derated, r.overlapped),
+        (2500, 400, true, false)
+    );
     assert_eq!(b.axes(), 4);
     assert_eq!(b.chain().bus().windows(), windows_of_one_detection(4));
 }

@@ -72,6 +72,79 @@ pub enum BatchState<'a, E> {
     Done(Result<&'a Frames, E>),
 }
 
+impl Lay {
+    /// The layout with `cmd` appended, and where `cmd` goes: window 0 for
+    /// the leading read, else its position in the rest's stream.
+    // Every value ≤ 3 · (4 + 3) + 3: a device holds at most MAX_COMMANDS.
+    #[allow(clippy::arithmetic_side_effects)]
+    fn with(self, cmd: Command) -> (Lay, u8) {
+        let resp = cmd.response_len();
+        let mut lay = Lay {
+            count: self.count + 1,
+            ..self
+        };
+        if self.count == 0 && resp > 0 {
+            lay.head = resp;
+            return (lay, 0);
+        }
+        // A second response waits until the one before it is out (the
+        // chip would abandon it); other bytes overlap a response.
+        let mut pos = self.len;
+        if resp > 0 && pos < self.free_at {
+            pos = self.free_at;
+        }
+        lay.len = pos + cmd.encode().len() as u8;
+        if resp > 0 {
+            if lay.first_read == u8::MAX {
+                lay.first_read = pos;
+            }
+            lay.free_at = pos + resp;
+            lay.end = lay.end.max(pos + 1 + resp);
+        }
+        (lay, pos)
+    }
+
+    const NEW: Lay = Lay {
+        count: 0,
+        head: 0,
+        len: 0,
+        end: 0,
+        free_at: 0,
+        first_read: u8::MAX,
+    };
+
+    /// The device has commands after its leading read: it is aligned on
+    /// the sync window.
+    fn aligned(&self) -> bool {
+        self.len > 0
+    }
+
+    /// The window after the leading read's response.
+    fn head_end(&self) -> u8 {
+        if self.head > 0 {
+            self.head.saturating_add(1)
+        } else {
+            0
+        }
+    }
+
+    /// The earliest window the rest may start in: after the leading
+    /// read's command byte, and its first response not before the leading
+    /// read's is out.
+    fn min_start(&self) -> u8 {
+        if self.head == 0 {
+            return 0;
+        }
+        let after_read = self.head.saturating_sub(self.first_read);
+        after_read.max(1)
+    }
+
+    /// Windows the rest's responses take past its last byte.
+    fn tail(&self) -> u8 {
+        self.end.max(self.len).saturating_sub(self.len)
+    }
+}
+
 /// Why a batch cannot be scheduled.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
@@ -104,6 +177,61 @@ pub enum ChainError<E> {
 pub struct Batch {
     n: u8,
     cmds: [Vec<Command, MAX_COMMANDS>; MAX_DEVICES],
+    /// The most windows the batch may take ([`Batch::set_window_budget`]).
+    budget: u8,
+    /// What the layout gives each device so far, and the batch's windows.
+    lay: [Lay; MAX_DEVICES],
+    span: Span,
+}
+
+/// A device's commands as [`Plan::schedule`] lays them out, in windows:
+/// a leading read (the first command, if it reads) in window 0, the rest
+/// as one stream right-aligned on the batch's sync window. Built one
+/// command at a time ([`Lay::with`]); the plan and the window budget use
+/// the same rule.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Lay {
+    /// Commands so far.
+    count: u8,
+    /// Response bytes of the leading read (0: none).
+    head: u8,
+    /// The rest's stream: its length, the end of its last response (both
+    /// relative to its start), where its next response may start, and
+    /// where its first response starts (`u8::MAX`: none).
+    len: u8,
+    end: u8,
+    free_at: u8,
+    first_read: u8,
+}
+
+/// The batch's windows, from running maxima over its devices (each only
+/// grows, so the count is never below the plan's): the latest end of an
+/// aligned stream (the sync window + 1), the longest response tail past
+/// one, the last response of a leading read.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+struct Span {
+    sync: u8,
+    tail: u8,
+    reads_end: u8,
+}
+
+impl Span {
+    fn windows(&self) -> u8 {
+        self.sync.saturating_add(self.tail).max(self.reads_end)
+    }
+
+    /// With `lay`'s device in it.
+    fn with(self, lay: &Lay) -> Span {
+        let mut span = Span {
+            reads_end: self.reads_end.max(lay.head_end()),
+            ..self
+        };
+        if lay.aligned() {
+            span.sync = span.sync.max(lay.min_start().saturating_add(lay.len));
+            span.tail = span.tail.max(lay.tail());
+        }
+        span
+    }
 }
 
 impl Batch {
@@ -112,15 +240,34 @@ impl Batch {
         Batch {
             n: n.min(MAX_DEVICES) as u8,
             cmds: Default::default(),
+            budget: MAX_WINDOWS as u8,
+            lay: [Lay::NEW; MAX_DEVICES],
+            span: Span::default(),
         }
+    }
+
+    /// At most `windows` CS windows (at least the 5 of a read and a Run,
+    /// at most [`MAX_WINDOWS`]): a command that would make the batch
+    /// longer is refused with [`ScheduleError::TooManyWindows`] (the
+    /// caller sends it in a later batch). A batch's windows are what a
+    /// control tick's period can hold on a long chain. Kept by
+    /// [`Batch::reset`].
+    pub fn set_window_budget(&mut self, windows: usize) {
+        self.budget = windows.clamp(STREAM_WINDOWS, MAX_WINDOWS) as u8;
+    }
+
+    /// The windows [`Plan::schedule`] gives this batch, or more (an
+    /// upper bound from running maxima).
+    pub fn windows_at_most(&self) -> usize {
+        usize::from(self.span.windows())
     }
 
     /// The same command for every device.
     pub fn all(n: usize, cmd: Command) -> Batch {
         let mut b = Batch::new(n);
-        for list in b.cmds.iter_mut().take(usize::from(b.n)) {
-            // Capacity ≥ 1: cannot fail.
-            let _ = list.push(cmd);
+        for d in 0..usize::from(b.n) {
+            // One command per device: within every budget, cannot fail.
+            let _ = b.push(d, cmd);
         }
         b
     }
@@ -133,16 +280,27 @@ impl Batch {
         self.cmds.iter().all(|c| c.is_empty())
     }
 
-    /// Append a command for `device`.
+    /// Append a command for `device` (if the batch stays within its
+    /// window budget).
     pub fn push(&mut self, device: usize, cmd: Command) -> Result<(), ScheduleError> {
         if device >= usize::from(self.n) {
             return Err(ScheduleError::NoSuchDevice(device.min(255) as u8));
         }
-        self.cmds
-            .get_mut(device)
-            .ok_or(ScheduleError::NoSuchDevice(device.min(255) as u8))?
-            .push(cmd)
-            .map_err(|_| ScheduleError::TooManyCommands)
+        let (Some(list), Some(lay)) = (self.cmds.get_mut(device), self.lay.get_mut(device)) else {
+            return Err(ScheduleError::NoSuchDevice(device.min(255) as u8));
+        };
+        if list.is_full() {
+            return Err(ScheduleError::TooManyCommands);
+        }
+        let (new, _) = lay.with(cmd);
+        let span = self.span.with(&new);
+        if span.windows() > self.budget {
+            return Err(ScheduleError::TooManyWindows);
+        }
+        list.push(cmd).map_err(|_| ScheduleError::TooManyCommands)?;
+        *lay = new;
+        self.span = span;
+        Ok(())
     }
 
     /// Commands queued for `device`.
@@ -154,6 +312,8 @@ impl Batch {
         for c in self.cmds.iter_mut() {
             c.clear();
         }
+        self.lay = [Lay::NEW; MAX_DEVICES];
+        self.span = Span::default();
     }
 
     /// Empty the batch and make it one for `n` devices (clamped to [`MAX_DEVICES`]).
@@ -225,8 +385,9 @@ impl Plan {
 
     /// [`Plan::schedule`] for any batch (the layout the module docs give).
     // Positions are bounded by the constants before any sum: a device's
-    // stream is at most MAX_WINDOWS + 4 bytes (checked before each command
-    // is placed), so no position, length or window count can overflow.
+    // layout is at most MAX_COMMANDS commands of ≤ 4 bytes and ≤ 3
+    // response bytes, and the windows are checked against MAX_WINDOWS
+    // before any byte is placed.
     #[allow(clippy::arithmetic_side_effects)]
     fn schedule_general(&mut self, batch: &Batch) -> Result<(), ScheduleError> {
         let n = usize::from(batch.n).min(MAX_DEVICES);
@@ -234,41 +395,49 @@ impl Plan {
         self.windows = 0;
         self.sync_window = 0;
         self.reads.clear();
-        // Per device: its byte stream, the stream's length, and the end of
-        // its last response (exclusive), in windows from its first byte.
-        // (4 spare bytes: a command is copied as its whole 4-byte encoding.)
-        let mut streams = [[0u8; MAX_WINDOWS + 4]; MAX_DEVICES];
-        let mut lens = [0usize; MAX_DEVICES];
-        let mut ends = [0usize; MAX_DEVICES];
-        let mut sync = 0;
-        for d in 0..n {
-            let (Some(stream), Some(cmds)) = (streams.get_mut(d), batch.cmds.get(d)) else {
-                break;
-            };
-            let Some((len, end)) = self.lay_stream(d, cmds, stream) else {
-                return Err(self.too_many_windows());
-            };
-            if let (Some(l), Some(e)) = (lens.get_mut(d), ends.get_mut(d)) {
-                *l = len;
-                *e = end;
+        let mut lays = [Lay::NEW; MAX_DEVICES];
+        let mut span = Span::default();
+        for (lay, cmds) in lays.iter_mut().zip(batch.cmds.iter()).take(n) {
+            for cmd in cmds {
+                *lay = lay.with(*cmd).0;
             }
-            sync = sync.max(len);
+            span = span.with(lay);
         }
-        let mut windows = 0;
-        for (l, e) in lens.iter().zip(ends.iter()).take(n) {
-            windows = windows.max(sync - l + e);
-        }
+        // The running maxima are exact over whole devices.
+        let windows = usize::from(span.windows());
         if windows > MAX_WINDOWS {
             return Err(self.too_many_windows());
         }
         self.windows = windows as u8;
-        self.sync_window = sync.saturating_sub(1) as u8;
-        // Right-align: a device's stream starts at `sync − len`.
-        for r in self.reads.iter_mut() {
-            let off = lens.get(usize::from(r.device)).map_or(0, |l| sync - l);
-            r.first_window += off as u8;
+        self.sync_window = span.sync.saturating_sub(1);
+        for row in self.tx.iter_mut() {
+            *row = [0; MAX_DEVICES];
         }
-        self.fill_windows(&streams, &lens, sync);
+        for (d, (lay, cmds)) in lays.iter().zip(batch.cmds.iter()).enumerate().take(n) {
+            // The rest starts where it ends on the sync window.
+            let off = span.sync.saturating_sub(lay.len);
+            let mut at = Lay::NEW;
+            for (index, cmd) in cmds.iter().enumerate() {
+                let (next, pos) = at.with(*cmd);
+                let start = if at.count == 0 && next.head > 0 {
+                    0
+                } else {
+                    usize::from(off + pos)
+                };
+                at = next;
+                self.place(d, n, start, *cmd);
+                let resp = cmd.response_len();
+                if resp > 0 {
+                    let _ = self.reads.push(ReadSlot {
+                        device: d as u8,
+                        index: index as u8,
+                        first_window: (start + 1) as u8,
+                        len: resp,
+                        command: *cmd,
+                    });
+                }
+            }
+        }
         Ok(())
     }
 
@@ -281,80 +450,14 @@ impl Plan {
         ScheduleError::TooManyWindows
     }
 
-    /// Device `d`'s byte stream for `cmds`, written into `stream` (zeroed:
-    /// NOP padding) with a read slot per response, window indices relative
-    /// to the stream's start. Its length and the end of its last response
-    /// (at least the length), or `None` if it needs more than
-    /// [`MAX_WINDOWS`].
-    // Bounded as in `schedule_general`: every position < MAX_WINDOWS + 4.
-    #[allow(clippy::arithmetic_side_effects)]
-    fn lay_stream(
-        &mut self,
-        d: usize,
-        cmds: &[Command],
-        stream: &mut [u8; MAX_WINDOWS + 4],
-    ) -> Option<(usize, usize)> {
-        let mut len = 0usize;
-        let mut end = 0usize;
-        // Earliest position at which the next response-producing command may go.
-        let mut free_at = 0usize;
-        for (index, cmd) in cmds.iter().enumerate() {
-            let resp = usize::from(cmd.response_len());
-            if resp > 0 && len < free_at {
-                len = free_at; // NOP padding (the stream is zeroed)
-            }
-            let (bytes, k) = cmd.encode().raw();
-            if len + k > MAX_WINDOWS {
-                return None;
-            }
-            // The encoding's unused tail bytes are 0 (NOP) and the next
-            // command overwrites them.
-            if let Some(cells) = stream.get_mut(len..len + 4) {
-                cells.copy_from_slice(&bytes);
-            }
-            if resp > 0 {
-                free_at = len + resp;
-                end = end.max(len + 1 + resp);
-                let _ = self.reads.push(ReadSlot {
-                    device: d as u8,
-                    index: index as u8,
-                    first_window: (len + 1) as u8,
-                    len: resp as u8,
-                    command: *cmd,
-                });
-            }
-            len += k;
-        }
-        Some((len, end.max(len)))
-    }
-
-    /// The transmit windows: device `d`'s stream right-aligned on `sync`,
-    /// the last device of the chain first in each window.
-    // Bounded as in `schedule_general`: every position < MAX_WINDOWS + 4.
-    #[allow(clippy::arithmetic_side_effects)]
-    fn fill_windows(
-        &mut self,
-        streams: &[[u8; MAX_WINDOWS + 4]; MAX_DEVICES],
-        lens: &[usize; MAX_DEVICES],
-        sync: usize,
-    ) {
-        let n = usize::from(self.n);
-        for (w, row) in self
-            .tx
-            .iter_mut()
-            .enumerate()
-            .take(usize::from(self.windows))
-        {
-            *row = [0; MAX_DEVICES];
-            for ((stream, len), d) in streams.iter().zip(lens.iter()).zip(0..n) {
-                // Position w of the window is byte w − (sync − len) of the stream.
-                let Some(i) = (w + len).checked_sub(sync) else {
-                    continue;
-                };
-                if let (Some(b), Some(cell)) = (stream.get(i), row.get_mut(n - 1 - d)) {
-                    // (i < len + 4 ≤ MAX_WINDOWS + 4: past len the stream is NOPs.)
-                    *cell = *b;
-                }
+    /// `cmd`'s bytes for device `d` of `n` from window `start` on (the
+    /// last device of the chain first in each window).
+    fn place(&mut self, d: usize, n: usize, start: usize, cmd: Command) {
+        let col = n.saturating_sub(1).saturating_sub(d);
+        let (bytes, k) = cmd.encode().raw();
+        for (row, b) in self.tx.iter_mut().skip(start).zip(bytes).take(k) {
+            if let Some(cell) = row.get_mut(col) {
+                *cell = b;
             }
         }
     }
@@ -801,21 +904,57 @@ mod tests {
     }
 
     #[test]
-    fn get_param_response_is_read_after_the_aligned_command() {
+    fn a_device_that_only_reads_starts_in_window_0_and_adds_no_window() {
         let mut b = Batch::new(2);
         b.push(0, Command::Run(Direction::Forward, 5)).unwrap();
         b.push(1, Command::GetParam(Register::AbsPos)).unwrap();
         let plan = Plan::new(&b).unwrap();
-        // Run ends in window 3, GetParam is in window 3, its 3 bytes in 4..=6.
-        assert_eq!(plan.windows(), 7);
-        assert_eq!(plan.window(3).unwrap(), &[0x21, 0x05]);
+        // Run in windows 0..=3; GetParam in window 0, its 3 bytes in 1..=3
+        // (right-aligned it would take windows 3..=6).
+        assert_eq!(plan.windows(), 4);
+        assert_eq!(b.windows_at_most(), 4);
+        assert_eq!(plan.window(0).unwrap(), &[0x21, 0x51]);
+        assert_eq!(plan.window(3).unwrap(), &[0x00, 0x05]);
         let mut rx: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS];
-        rx[4][0] = 0x3F;
-        rx[5][0] = 0xFF;
-        rx[6][0] = 0xFE;
+        rx[1][0] = 0x3F;
+        rx[2][0] = 0xFF;
+        rx[3][0] = 0xFE;
         let replies = plan.decode(&rx);
         assert_eq!(replies.param(1, Register::AbsPos), Some(0x3F_FFFE));
         assert_eq!(replies.param(0, Register::AbsPos), None);
+    }
+
+    #[test]
+    fn a_read_after_a_write_keeps_the_device_aligned() {
+        let mut b = Batch::new(2);
+        b.push(0, Command::Run(Direction::Forward, 5)).unwrap();
+        b.push(1, Command::HardStop).unwrap();
+        b.push(1, Command::GetParam(Register::AbsPos)).unwrap();
+        let plan = Plan::new(&b).unwrap();
+        // Device 1's stream (HardStop, GetParam) ends with Run's in window
+        // 3; the response follows in 4..=6.
+        assert_eq!(plan.windows(), 7);
+        assert_eq!(b.windows_at_most(), 7);
+        assert_eq!(plan.sync_window(), 3);
+    }
+
+    #[test]
+    fn a_command_past_the_window_budget_is_refused_and_the_batch_stays() {
+        let mut b = Batch::new(2);
+        b.set_window_budget(5);
+        b.push(0, Command::GetParam(Register::AbsPos)).unwrap();
+        b.push(0, Command::Run(Direction::Forward, 5)).unwrap();
+        b.push(1, Command::GetParam(Register::AbsPos)).unwrap();
+        assert_eq!(b.push(1, Command::SetParam(Register::MaxSpeed, 10)), Ok(()));
+        // A third command would make device 1's stream 8 windows long.
+        assert_eq!(
+            b.push(1, Command::Run(Direction::Forward, 5)),
+            Err(ScheduleError::TooManyWindows)
+        );
+        assert_eq!(b.commands(1).len(), 2);
+        let plan = Plan::new(&b).unwrap();
+        assert!(plan.windows() <= 5);
+        assert_eq!(plan.windows(), b.windows_at_most());
     }
 
     #[test]

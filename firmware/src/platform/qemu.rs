@@ -17,7 +17,7 @@
 //!   late loses the deadlines it missed, as on the board. The app's TIM2
 //!   task runs unchanged. The idle loop waits with `wfi` ([`idle_wait`]),
 //!   so QEMU does not spend a host core on an emulated spin loop, and the
-//!   tick's cost under QEMU is [`tick_need_ns`] (measured), which the rate
+//!   tick's cost under QEMU is [`tick_need`] (measured), which the rate
 //!   is fitted to.
 //! * **Chain**: [`ChainDriver`] holds [`AXES`] simulated powerSTEP01s and
 //!   lets them live through the time of QEMU's virtual clock ([`HostClock`],
@@ -648,11 +648,14 @@ pub const TICK_NS_FIXED: u64 = 20_000;
 pub const TICK_NS_PER_CHIP: u64 = 45_000;
 
 /// [`TICK_NS_FIXED`] + [`TICK_NS_PER_CHIP`] per chip (the board's is
-/// `rate::tick_need_ns`, SPI bytes).
-pub fn tick_need_ns(chips: usize) -> u64 {
-    TICK_NS_PER_CHIP
-        .saturating_mul(chips as u64)
-        .saturating_add(TICK_NS_FIXED)
+/// `rate::need`, SPI bytes); overlapped no shorter: the simulated chips
+/// are clocked on the CPU as the batch starts.
+pub fn tick_need(chips: usize) -> bridge_logic::rate::Need {
+    bridge_logic::rate::Need::serial(
+        TICK_NS_PER_CHIP
+            .saturating_mul(chips as u64)
+            .saturating_add(TICK_NS_FIXED),
+    )
 }
 
 /// The idle loop's wait: `wfi`. QEMU's CPU then sleeps until the next

@@ -236,15 +236,16 @@ pub fn rom_bootloader(rcc: &pac::RCC, syscfg: &pac::SYSCFG) -> ! {
     crate::drivers::mcu::jump_to_rom_bootloader(rcc, syscfg)
 }
 
-/// What a streaming control tick of `chips` costs on the board, ns: the
-/// computation as measured (`rate::compute_ns`) and the batch as the
-/// installed chain driver times it (its SCK, TIM7 gap and set-up; the
-/// board's nominal timing, `rate::BOARD_BUS`, before it is installed).
-pub fn tick_need_ns(chips: usize) -> u64 {
+/// What a streaming control tick of `chips` needs on the board, in a row
+/// and overlapped: the computation as measured (`rate::compute_ns`) and
+/// the batch as the installed chain driver times it (its SCK, TIM7 gap and
+/// set-up; the board's nominal timing, `rate::BOARD_BUS`, before it is
+/// installed).
+pub fn tick_need(chips: usize) -> bridge_logic::rate::Need {
     let bus = CHAIN
         .with(|d| d.timing())
         .unwrap_or(bridge_logic::rate::BOARD_BUS);
-    bridge_logic::rate::tick_need_ns_on(chips, bus)
+    bridge_logic::rate::need_on(chips, bus)
 }
 
 /// The idle loop's wait: a `nop` (no `wfi`, which stops the debug clock on

@@ -382,30 +382,27 @@ impl<B: ChainBus> Bridge<B> {
         source: SettingsSource,
         build_hz: u32,
     ) -> (Bridge<B>, crate::rate::Rate) {
-        Self::new_fitted_with(
-            bus,
-            stage,
-            settings,
-            source,
-            build_hz,
-            crate::rate::tick_need_ns,
-        )
+        Self::new_fitted_with(bus, stage, settings, source, build_hz, crate::rate::need)
     }
 
     /// [`Bridge::new_fitted`] with the platform's cost of a streaming tick
-    /// of `n` chips, ns ([`crate::rate::fit_need`]): the QEMU image's
-    /// simulated chips cost more than the board's bytes on SPI.
+    /// of `n` chips ([`crate::rate::fit_need`]): the QEMU image's
+    /// simulated chips cost more than the board's bytes on SPI. The bridge
+    /// ticks overlapped if the rate says so ([`Bridge::set_overlapped`]),
+    /// and its batches take at most the rate's windows.
     pub fn new_fitted_with(
         bus: B,
         stage: PowerStage,
         settings: Settings,
         source: SettingsSource,
         build_hz: u32,
-        need_ns: fn(usize) -> u64,
+        need: fn(usize) -> crate::rate::Need,
     ) -> (Bridge<B>, crate::rate::Rate) {
         let (chain, n, chain_error) = Self::detect(bus);
-        let rate = crate::rate::fit_need(build_hz, need_ns(n));
-        let bridge = Self::build(chain, n, chain_error, stage, settings, source, rate.us);
+        let rate = crate::rate::fit_need(build_hz, need(n));
+        let mut bridge = Self::build(chain, n, chain_error, stage, settings, source, rate.us);
+        bridge.set_overlapped(rate.overlapped);
+        bridge.set_window_budget(usize::from(rate.windows));
         (bridge, rate)
     }
 
@@ -708,7 +705,7 @@ impl<B: ChainBus> Bridge<B> {
     /// DMA calls itself, one tick's end right before the next one's begin
     /// ([`Bridge::tick_pipelined`] does that).
     pub fn tick(&mut self, now_ms: u64) {
-        if self.overlap.blocking {
+        if self.overlap.on {
             self.tick_overlapped_blocking(now_ms);
             return;
         }

@@ -41,10 +41,11 @@ use crate::powerstep::chain::{BatchState, ChainBus, Frames, Plan, MAX_DEVICES, M
 /// The overlapped tick's state.
 #[derive(Clone, Debug)]
 pub(super) struct Overlap {
-    /// [`Bridge::tick`] runs overlapped on its blocking bus (the
-    /// simulators: the batch is clocked at the tick, its replies kept for
-    /// the next one).
-    pub(super) blocking: bool,
+    /// The ticks run overlapped: [`Bridge::tick_pipelined`] is
+    /// [`Bridge::tick_overlapped`], and [`Bridge::tick`] clocks on its
+    /// blocking bus the batch the previous tick planned and keeps its
+    /// replies for the next (the simulators).
+    pub(super) on: bool,
     /// A planned batch waits for the next tick.
     ready: bool,
     /// The blocking variant's batch clocked at the last tick (a failed one
@@ -56,7 +57,7 @@ pub(super) struct Overlap {
 impl Overlap {
     pub(super) const fn new() -> Overlap {
         Overlap {
-            blocking: false,
+            on: false,
             ready: false,
             rx: [[0; MAX_DEVICES]; MAX_WINDOWS],
             done: false,
@@ -95,6 +96,9 @@ impl<B: ChainBus> Bridge<B> {
         previous: BatchState<'_, B::Error>,
         start: impl FnOnce(&Plan, &mut B) -> Result<(), B::Error>,
     ) -> PipelinedTick {
+        if self.overlap.on {
+            return self.tick_overlapped(now_ms, previous, start);
+        }
         match previous {
             BatchState::Running => {
                 self.timing.overruns = self.timing.overruns.saturating_add(1);
@@ -126,15 +130,17 @@ impl<B: ChainBus> Bridge<B> {
         previous: BatchState<'_, B::Error>,
         start: impl FnOnce(&Plan, &mut B) -> Result<(), B::Error>,
     ) -> PipelinedTick {
-        let decoded = match previous {
+        let failed = match &previous {
             BatchState::Running => {
                 self.timing.overruns = self.timing.overruns.saturating_add(1);
                 return PipelinedTick::Overrun;
             }
-            BatchState::Done(rx) => Some(self.group.end_launched(&mut self.chain, rx).is_ok()),
-            BatchState::Idle => None,
+            BatchState::Done(rx) => rx.is_err(),
+            BatchState::Idle => false,
         };
-        let ready = core::mem::take(&mut self.overlap.ready) && decoded != Some(false);
+        // First the batch the last tick planned (unless the one before it
+        // failed: then it goes unsent), then the previous one's replies.
+        let ready = core::mem::take(&mut self.overlap.ready) && !failed;
         let started = ready.then(|| {
             let plan = self.group.launch();
             match self.chain.begin(plan) {
@@ -142,7 +148,8 @@ impl<B: ChainBus> Bridge<B> {
                 Err(_) => Err(None),
             }
         });
-        if let Some(ok) = decoded {
+        if let BatchState::Done(rx) = previous {
+            let ok = self.group.end_previous(&mut self.chain, rx, ready).is_ok();
             self.group.absorb_decoded(ok);
             self.after_batch(ok);
         }
@@ -151,7 +158,7 @@ impl<B: ChainBus> Bridge<B> {
                 // Not on the bus: as a batch that failed (a refusal by the
                 // driver puts the chain out of step, as a failed transfer).
                 if let Some(e) = e {
-                    let _ = self.group.end_launched(&mut self.chain, Err(e));
+                    let _ = self.group.end_previous(&mut self.chain, Err(e), false);
                 }
                 self.group.absorb_decoded(false);
                 self.after_batch(false);
@@ -168,17 +175,25 @@ impl<B: ChainBus> Bridge<B> {
         }
     }
 
-    /// [`Bridge::tick`] runs overlapped (`on`): each tick clocks the batch
-    /// the previous one planned through the blocking bus and keeps its
-    /// replies for the next ([`Bridge::tick_overlapped`]). For simulated
-    /// chains, which then see the firmware's timing.
+    /// The ticks run overlapped (`on`; module docs): the firmware sets it
+    /// as `rate::fit` says ([`Bridge::new_fitted_with`]); on a simulated
+    /// chain [`Bridge::tick`] clocks each batch at the tick after its plan,
+    /// as the firmware's driver does.
     pub fn set_overlapped(&mut self, on: bool) {
-        self.overlap.blocking = on;
+        self.overlap.on = on;
     }
 
-    /// [`Bridge::tick`] runs overlapped ([`Bridge::set_overlapped`]).
+    /// At most `windows` CS windows a batch (what the tick's period holds
+    /// on this chain: `rate::Rate::windows`, which
+    /// [`Bridge::new_fitted_with`] applies; a command past it waits for a
+    /// later tick).
+    pub fn set_window_budget(&mut self, windows: usize) {
+        self.group.set_window_budget(windows);
+    }
+
+    /// The ticks run overlapped ([`Bridge::set_overlapped`]).
     pub fn is_overlapped(&self) -> bool {
-        self.overlap.blocking
+        self.overlap.on
     }
 
     pub(super) fn tick_overlapped_blocking(&mut self, now_ms: u64) {

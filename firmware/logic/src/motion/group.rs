@@ -85,6 +85,13 @@ impl AxisGroup {
         self.axes.iter().all(|a| a.is_settled())
     }
 
+    /// At most `windows` CS windows a batch ([`Batch::set_window_budget`]:
+    /// what the tick's period holds; a command past it waits for a later
+    /// tick).
+    pub fn set_window_budget(&mut self, windows: usize) {
+        self.batch.set_window_budget(windows);
+    }
+
     /// The plan being made (`making`) or the other one.
     fn slot(&self, making: bool) -> &Plan {
         if self.second == making {
@@ -111,35 +118,34 @@ impl AxisGroup {
     }
 
     /// The overlapped tick: the plan of the last [`AxisGroup::prepare`]
-    /// goes on the bus (its replies are [`AxisGroup::end_launched`]'s), and
+    /// goes on the bus (its replies are [`AxisGroup::end_previous`]'s), and
     /// the next prepare makes the other one.
     pub fn launch(&mut self) -> &Plan {
         self.second = !self.second;
         self.slot(false)
     }
 
-    /// The plan [`AxisGroup::launch`] put on the bus.
-    pub fn launched(&self) -> &Plan {
-        self.slot(false)
-    }
-
-    /// The overlapped tick: decode what came back for the launched plan
-    /// (or the bus error that cut it short); [`AxisGroup::absorb_decoded`]
-    /// gives it to the axes.
-    pub fn end_launched<B: ChainBus>(
+    /// The overlapped tick: decode what came back for the batch launched
+    /// before the last [`AxisGroup::launch`] if that one was `just_launched`
+    /// (else for the last launched), or the bus error that cut it short;
+    /// [`AxisGroup::absorb_decoded`] gives it to the axes.
+    pub fn end_previous<B: ChainBus>(
         &mut self,
         chain: &mut Chain<B>,
         rx: Result<&Frames, B::Error>,
+        just_launched: bool,
     ) -> Result<(), ChainError<B::Error>> {
-        let plan = if self.second {
-            &self.plans.0
-        } else {
+        // The plan being made is the one before the launch until the next
+        // prepare.
+        let plan = if self.second == just_launched {
             &self.plans.1
+        } else {
+            &self.plans.0
         };
         chain.end(plan, rx, &mut self.replies)
     }
 
-    /// Every axis takes the replies [`AxisGroup::end_launched`] decoded
+    /// Every axis takes the replies [`AxisGroup::end_previous`] decoded
     /// (`ok`), or sets its chip up again (the batch failed).
     pub fn absorb_decoded(&mut self, ok: bool) {
         self.absorb_result(ok);

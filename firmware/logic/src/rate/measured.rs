@@ -19,3 +19,6 @@ pub const TICK_CYCLES_8_AXES_5KHZ: u32 = 18_009;
 /// The chain driver's cycles in the control tick per streaming batch of 8
 /// chips: start and hand-over (`cargo chain-cpu`).
 pub const CHAIN_DRIVER_TICK_CYCLES: u32 = 645;
+/// The chain driver's interrupts per streaming batch of 8 chips (15: a
+/// gap, a set-up and a window end per window; `cargo chain-cpu`).
+pub const CHAIN_DRIVER_ISR_CYCLES: u32 = 1_687;

@@ -73,7 +73,70 @@ pub struct Rate {
     /// Slower than the build setting: the chain's batch and the tick's
     /// computation would not fit its period.
     pub derated: bool,
+    /// The tick runs overlapped (`Bridge::tick_overlapped`: the batch on
+    /// the bus while the next is planned, a command one tick later): the
+    /// computation and the batch in a row do not fit the period, the
+    /// longer of the two does.
+    pub overlapped: bool,
+    /// The most CS windows a batch may take at this rate (a streaming
+    /// batch is [`STREAM_WINDOWS`]; a longer one, e.g. a move's start
+    /// with its register writes, must fit the period too: the axes send
+    /// the rest at the next ticks).
+    pub windows: u8,
 }
+
+/// What a streaming tick needs, ns, run in a row (the pipelined tick: the
+/// computation, then the batch) and overlapped (the longer of the two),
+/// and what sizes a batch: one CS window on this chain and, overlapped,
+/// the time before the batch starts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Need {
+    pub serial_ns: u64,
+    pub overlapped_ns: u64,
+    /// One window of the chain (0: the platform's batch is not timed by
+    /// windows).
+    pub window_ns: u64,
+    pub launch_ns: u64,
+}
+
+impl Need {
+    /// A platform whose tick cannot overlap (the QEMU image clocks its
+    /// simulated chips on the CPU): both the same, batches not limited.
+    pub const fn serial(ns: u64) -> Need {
+        Need {
+            serial_ns: ns,
+            overlapped_ns: ns,
+            window_ns: 0,
+            launch_ns: 0,
+        }
+    }
+
+    /// The most windows a batch may take in a period of `us` µs.
+    const fn windows(&self, us: u32, overlapped: bool) -> u8 {
+        if self.window_ns == 0 {
+            return MAX_BATCH_WINDOWS;
+        }
+        let budget = us as u64 * 10 * BUDGET_PERCENT;
+        let fixed = if overlapped {
+            self.launch_ns
+        } else {
+            self.serial_ns
+                .saturating_sub(STREAM_WINDOWS as u64 * self.window_ns)
+        };
+        let w = budget.saturating_sub(fixed) / self.window_ns;
+        if w > MAX_BATCH_WINDOWS as u64 {
+            MAX_BATCH_WINDOWS
+        } else if w < STREAM_WINDOWS as u64 {
+            STREAM_WINDOWS as u8
+        } else {
+            w as u8
+        }
+    }
+}
+
+/// The most windows the chain layer lays out in one batch
+/// (`powerstep::chain::MAX_WINDOWS`).
+pub const MAX_BATCH_WINDOWS: u8 = 16;
 
 pub mod measured;
 
@@ -207,30 +270,81 @@ pub const fn tick_need_ns(chips: usize) -> u64 {
     tick_need_ns_on(chips, BOARD_BUS)
 }
 
-/// The fastest rate at most `hz` whose period holds a streaming tick of
-/// `chips` within [`BUDGET_PERCENT`], halving from `hz` (a period that
-/// stays a whole number of µs), down to [`HZ_MIN`]. A tick that does not fit
-/// is skipped as an overrun, and every skipped tick is a tick of time the
-/// profile loses: a box must not run its motors slow, so it runs slower
-/// ticks instead and says so.
-pub const fn fit(hz: u32, chips: usize) -> Rate {
-    fit_need(hz, tick_need_ns(chips))
+/// From the control tick's interrupt to its batch's start, besides the
+/// chain driver's hand-over and start (in
+/// [`measured::CHAIN_DRIVER_TICK_CYCLES`]): the interrupt's entry, the
+/// watchdog's feed and the tick clock, ~100 instructions (an estimate
+/// with room: 2 µs are 336 cycles).
+pub const LAUNCH_SLACK_NS: u64 = 2_000;
+
+/// From the control tick's interrupt to its batch's start, ns: the chain
+/// driver's hand-over and start ([`measured::CHAIN_DRIVER_TICK_CYCLES`])
+/// and [`LAUNCH_SLACK_NS`].
+pub const fn launch_ns() -> u64 {
+    (measured::CHAIN_DRIVER_TICK_CYCLES as u64 * 1_000_000_000).div_ceil(measured::SYSCLK_HZ as u64)
+        + LAUNCH_SLACK_NS
 }
 
-/// [`fit`] for a tick that needs `need` ns (a platform whose tick costs
-/// something else than [`tick_need_ns`] says: the QEMU image's simulated
-/// chips).
-pub const fn fit_need(hz: u32, need: u64) -> Rate {
+/// Time one overlapped streaming tick needs with `chips` on a chain timed
+/// by `bus`, ns: the longer of the computation (with the chain driver's
+/// interrupts, which preempt it) and the batch (started at the tick's
+/// beginning, after the driver's hand-over and start).
+pub const fn overlapped_need_ns_on(chips: usize, bus: BusTiming) -> u64 {
+    let isr = (measured::CHAIN_DRIVER_ISR_CYCLES as u64 * 1_000_000_000)
+        .div_ceil(measured::SYSCLK_HZ as u64);
+    let compute = compute_ns(chips) + if chips == 0 { 0 } else { isr };
+    let batch = launch_ns() + bus.batch_ns(STREAM_WINDOWS, chips as u32);
+    if compute > batch {
+        compute
+    } else {
+        batch
+    }
+}
+
+/// Both needs of a streaming tick of `chips` on a chain timed by `bus`.
+pub const fn need_on(chips: usize, bus: BusTiming) -> Need {
+    Need {
+        serial_ns: tick_need_ns_on(chips, bus),
+        overlapped_ns: overlapped_need_ns_on(chips, bus),
+        window_ns: bus.batch_ns(1, chips as u32),
+        launch_ns: launch_ns(),
+    }
+}
+
+/// [`need_on`] the board's chain ([`BOARD_BUS`]).
+pub const fn need(chips: usize) -> Need {
+    need_on(chips, BOARD_BUS)
+}
+
+/// The fastest rate at most `hz` whose period holds a streaming tick of
+/// `chips` within [`BUDGET_PERCENT`], halving from `hz` (a period that
+/// stays a whole number of µs), down to [`HZ_MIN`]: at each rate the
+/// pipelined tick if it fits (a command reaches the chip at the next
+/// tick), else the overlapped one (one tick later). A tick that does not
+/// fit is skipped as an overrun, and every skipped tick is a tick of time
+/// the profile loses: a box must not run its motors slow, so it runs
+/// slower ticks instead and says so.
+pub const fn fit(hz: u32, chips: usize) -> Rate {
+    fit_need(hz, need(chips))
+}
+
+/// [`fit`] for a tick that needs `need` (a platform whose tick costs
+/// something else than [`need`] says: the QEMU image's simulated chips).
+pub const fn fit_need(hz: u32, need: Need) -> Rate {
     let mut h = hz;
     loop {
         let us = 1_000_000 / h;
-        let fits = need * 100 <= (us as u64) * 1000 * BUDGET_PERCENT;
+        let budget = (us as u64) * 1000 * BUDGET_PERCENT;
+        let serial = need.serial_ns * 100 <= budget;
+        let overlapped = !serial && need.overlapped_ns * 100 <= budget;
         let next = h / 2;
-        if fits || next < HZ_MIN || 1_000_000 % next != 0 {
+        if serial || overlapped || next < HZ_MIN || 1_000_000 % next != 0 {
             return Rate {
                 hz: h,
                 us,
                 derated: h != hz,
+                overlapped,
+                windows: need.windows(us, overlapped),
             };
         }
         h = next;
@@ -315,69 +429,96 @@ mod tick_clock_tests {
 mod fit_tests {
     use super::*;
 
+    /// A rate's hz, period, derating and overlap.
+    fn shape(r: Rate) -> (u32, u32, bool, bool) {
+        (r.hz, r.us, r.derated, r.overlapped)
+    }
+
+    #[test]
+    fn a_batch_may_take_what_the_period_leaves() {
+        // 8 chips at 5 kHz, overlapped: (180 − 5.8) µs / 29.6 µs per window.
+        assert_eq!(fit(5000, 8).windows, 5);
+        // 4 chips at 5 kHz in a row: (180 − 57.5) µs / 17.4 µs.
+        assert_eq!(fit(5000, 4).windows, 7);
+        // 1 kHz: every batch the chain layer can lay out.
+        assert_eq!(fit(1000, 8).windows, MAX_BATCH_WINDOWS);
+        // A platform that does not time windows: no limit.
+        assert_eq!(
+            fit_need(5000, Need::serial(10_000)).windows,
+            MAX_BATCH_WINDOWS
+        );
+    }
+
     #[test]
     fn eight_chips_fit_1_and_2_khz() {
-        assert_eq!(
-            fit(1000, 8),
-            Rate {
-                hz: 1000,
-                us: 1000,
-                derated: false
-            }
-        );
-        assert_eq!(
-            fit(2000, 8),
-            Rate {
-                hz: 2000,
-                us: 500,
-                derated: false
-            }
-        );
+        assert_eq!(shape(fit(1000, 8)), (1000, 1000, false, false));
+        assert_eq!(shape(fit(2000, 8)), (2000, 500, false, false));
     }
 
     #[test]
-    fn eight_chips_at_5_khz_run_at_2_5_khz() {
-        // ~113 µs of computation (the worst tick) + 5 · (24 384 + 5 190) ns ≈ 261 µs > 90 % of 200 µs.
+    fn eight_chips_at_5_khz_run_overlapped() {
+        // ~113 µs of computation (the worst tick) + 5 · (24 384 + 5 190) ns ≈ 261 µs > 90 % of 200 µs,
+        // the longer of the two (the batch, ~152 µs) < 180 µs.
         assert!(tick_need_ns(8) > 180_000);
-        assert_eq!(
-            fit(5000, 8),
-            Rate {
-                hz: 2500,
-                us: 400,
-                derated: true
-            }
-        );
+        assert!(need(8).overlapped_ns <= 180_000);
+        assert_eq!(shape(fit(5000, 8)), (5000, 200, false, true));
     }
 
     #[test]
-    fn four_chips_fit_5_khz() {
+    fn four_chips_fit_5_khz_in_a_row() {
         assert!(tick_need_ns(4) <= 180_000);
-        assert_eq!(
-            fit(5000, 4),
-            Rate {
-                hz: 5000,
-                us: 200,
-                derated: false
-            }
-        );
+        assert_eq!(shape(fit(5000, 4)), (5000, 200, false, false));
     }
 
     #[test]
     fn another_cost_fits_the_same_way() {
-        assert_eq!(fit_need(5000, tick_need_ns(8)), fit(5000, 8));
+        assert_eq!(fit_need(5000, need(8)), fit(5000, 8));
         // 200 µs does not fit 90 % of 200 µs, it fits 400 µs.
-        assert_eq!(fit_need(5000, 200_000).hz, 2500);
-        assert_eq!(fit_need(1000, 200_000).hz, 1000);
-        assert!(!fit_need(1000, 900_000).derated);
-        assert_eq!(fit_need(1000, 900_001).hz, 500);
+        assert_eq!(fit_need(5000, Need::serial(200_000)).hz, 2500);
+        assert_eq!(fit_need(1000, Need::serial(200_000)).hz, 1000);
+        assert!(!fit_need(1000, Need::serial(900_000)).derated);
+        assert_eq!(fit_need(1000, Need::serial(900_001)).hz, 500);
+        // Overlapped only when the row does not fit.
+        let both = Need {
+            serial_ns: 250_000,
+            overlapped_ns: 150_000,
+            ..Need::serial(0)
+        };
+        assert_eq!(shape(fit_need(5000, both)), (5000, 200, false, true));
+        assert!(!fit_need(2000, both).overlapped);
+    }
+
+    #[test]
+    fn the_overlapped_need_is_the_longer_of_computation_and_batch() {
+        for chips in 1..=8 {
+            let n = need(chips);
+            assert!(n.overlapped_ns < n.serial_ns, "{chips} chips");
+            assert!(n.overlapped_ns >= compute_ns(chips));
+            assert!(n.overlapped_ns >= BOARD_BUS.batch_ns(STREAM_WINDOWS, chips as u32));
+        }
     }
 
     #[test]
     fn the_fastest_rate_of_each_chain_length_in_a_5_khz_build() {
         // The measured cost (rate/measured.rs) on the board's bus
         // (docs/performance.md, "the control tick", states this table).
-        let hz: [u32; 8] = core::array::from_fn(|k| fit(5000, k + 1).hz);
-        assert_eq!(hz, [5000, 5000, 5000, 5000, 5000, 2500, 2500, 2500]);
+        let hz: [(u32, bool); 8] = core::array::from_fn(|k| {
+            let r = fit(5000, k + 1);
+            (r.hz, r.overlapped)
+        });
+        let (row, over) = ((5000, false), (5000, true));
+        assert_eq!(hz, [row, row, row, row, row, over, over, over]);
+    }
+
+    #[test]
+    fn the_fastest_rate_of_each_chain_length_in_a_10_khz_build() {
+        let hz: [(u32, bool); 8] = core::array::from_fn(|k| {
+            let r = fit(10_000, k + 1);
+            (r.hz, r.overlapped)
+        });
+        let (row, over) = ((10_000, false), (10_000, true));
+        let half = ((5000, false), (5000, true));
+        assert_eq!(hz, [row, row, over, half.0, half.0, half.1, half.1, half.1]);
     }
 
     #[test]
@@ -395,8 +536,11 @@ mod fit_tests {
 
     #[test]
     fn a_rate_that_cannot_halve_to_a_whole_period_stays() {
-        // 10 kHz with 8 chips: 5 kHz no, 2.5 kHz yes.
-        assert_eq!(fit(10_000, 8).hz, 2500);
+        // 10 kHz with 8 chips: 5 kHz (overlapped).
+        assert_eq!(fit(10_000, 8).hz, 5000);
+        // A tick that fits no rate ends at the last halving above the
+        // floor: 10 kHz → … → 625 Hz (312.5 Hz is below 500).
+        assert_eq!(fit_need(10_000, Need::serial(10_000_000)).hz, 625);
         // 500 Hz is the floor.
         assert_eq!(fit(500, 8).hz, 500);
     }

@@ -106,6 +106,7 @@ impl Axis {
         self.profile.set_position_fine(self.chip_fine());
         self.profile_jumped();
         self.homing = Some(Homing::start(params, pressed, self.rb.chip_pos, self.tick));
+        self.homing_out = [None, None];
         self.homing_ramps = true;
         self.state = AxisState::Homing;
         Ok(())
@@ -127,6 +128,7 @@ impl Axis {
 
     /// End a running homing sequence with `e` (the caller stops the chip).
     pub(super) fn end_homing(&mut self, e: HomingError) {
+        self.homing_out = [None, None];
         if let Some(h) = self.homing.as_mut() {
             if h.state.is_running() {
                 // The release may already have re-based ABS_POS.

@@ -346,6 +346,9 @@ pub struct Axis {
     homing: Option<Homing>,
     /// Homing started: ACC/DEC get the axis's limits before its first phase.
     homing_ramps: bool,
+    /// A homing phase's commands not yet sent (a batch with little room
+    /// takes them over several ticks, in order).
+    homing_out: [Option<Command>; 2],
     /// Position 0 is the home switch's edge (until a chip reset, a chain
     /// error or a stall says otherwise).
     homed: bool,
@@ -446,6 +449,7 @@ impl Axis {
             resets: 0,
             homing: None,
             homing_ramps: false,
+            homing_out: [None, None],
             homed: false,
             absolute_read: false,
             ext_read: None,

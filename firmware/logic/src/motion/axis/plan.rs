@@ -247,14 +247,23 @@ impl Axis {
         let l = units::clamp_to_chip(self.limits.requested, self.cfg.logical_shift);
         let acc = units::ramp_reg(l.acc, self.cfg.logical_shift);
         let dec = units::ramp_reg(l.dec, self.cfg.logical_shift);
-        if (acc, dec) != (self.limits.acc, self.limits.dec) {
-            if emit(Command::SetParam(Register::Acc, acc)) {
-                self.limits.acc = acc;
+        // Only what differs (a batch with little room takes one a tick);
+        // streaming starts at the tick after them.
+        let mut wrote = false;
+        if acc != self.limits.acc {
+            if !emit(Command::SetParam(Register::Acc, acc)) {
+                return;
             }
+            self.limits.acc = acc;
+            wrote = true;
+        }
+        if dec != self.limits.dec {
             if emit(Command::SetParam(Register::Dec, dec)) {
                 self.limits.dec = dec;
             }
-        } else {
+            return;
+        }
+        if !wrote {
             self.start_streaming(emit);
         }
     }
@@ -431,6 +440,12 @@ impl Axis {
             }
             return;
         }
+        // The rest of a phase's commands first (nothing else until they
+        // are out).
+        if self.homing_out.iter().any(Option::is_some) {
+            self.flush_homing(emit);
+            return;
+        }
         let s = self.rb.status;
         let seen = Seen {
             busy: s.busy(),
@@ -443,10 +458,8 @@ impl Axis {
         match step {
             Step::Wait => {}
             Step::Send(cmds) => {
-                for cmd in cmds.into_iter().flatten() {
-                    emit(cmd);
-                }
-                self.rb.sent_at = self.tick;
+                self.homing_out = cmds;
+                self.flush_homing(emit);
             }
             Step::Finished => {
                 // The chip rests on the home frame: hold there, exactly
@@ -464,6 +477,24 @@ impl Axis {
                 self.end_homing(e);
                 self.stop_then(AfterStop::Hold, Command::SoftStop);
             }
+        }
+    }
+
+    /// Send what is left of a homing phase's commands, in order, as far as
+    /// the batch takes them.
+    pub(super) fn flush_homing(&mut self, emit: &mut impl FnMut(Command) -> bool) {
+        let mut sent = false;
+        for slot in self.homing_out.iter_mut() {
+            if let Some(cmd) = *slot {
+                if !emit(cmd) {
+                    break;
+                }
+                *slot = None;
+                sent = true;
+            }
+        }
+        if sent {
+            self.rb.sent_at = self.tick;
         }
     }
 
