@@ -824,7 +824,20 @@ impl World {
             }
             self.run(1);
         }
-        let v = format!("not at rest after {cap_ms} ms");
+        let states: Vec<String> = (0..self.n())
+            .map(|k| {
+                let a = self.bridge.axis(k).expect("axis");
+                let all: Vec<_> = chip(&self.bridge, k).received().collect();
+                let last = &all[all.len().saturating_sub(4)..];
+                format!(
+                    "axis {k}: {:?} homing {} {:?} last {last:?}",
+                    a.state(),
+                    self.ax[k].homing,
+                    a.homing_state()
+                )
+            })
+            .collect();
+        let v = format!("not at rest after {cap_ms} ms: {states:?}");
         self.violation(v);
     }
 

@@ -93,7 +93,7 @@ impl Lay {
         if resp > 0 && pos < self.free_at {
             pos = self.free_at;
         }
-        lay.len = pos + cmd.encode().len() as u8;
+        lay.len = pos + cmd.wire_len();
         if resp > 0 {
             if lay.first_read == u8::MAX {
                 lay.first_read = pos;
@@ -257,9 +257,10 @@ impl Batch {
     }
 
     /// The windows [`Plan::schedule`] gives this batch, or more (an
-    /// upper bound from running maxima).
-    pub fn windows_at_most(&self) -> usize {
-        usize::from(self.span.windows())
+    /// upper bound from running maxima), for a batch with a window budget
+    /// below [`MAX_WINDOWS`] (`None`: not kept).
+    pub fn windows_at_most(&self) -> Option<usize> {
+        (self.budget < MAX_WINDOWS as u8).then_some(usize::from(self.span.windows()))
     }
 
     /// The same command for every device.
@@ -282,25 +283,58 @@ impl Batch {
 
     /// Append a command for `device` (if the batch stays within its
     /// window budget).
+    #[inline]
     pub fn push(&mut self, device: usize, cmd: Command) -> Result<(), ScheduleError> {
         if device >= usize::from(self.n) {
             return Err(ScheduleError::NoSuchDevice(device.min(255) as u8));
         }
+        // Only a batch with a budget below what the layout allows anyway
+        // keeps its span (the streaming tick at 1 kHz pays nothing).
+        if self.budget < MAX_WINDOWS as u8 {
+            return self.push_within_budget(device, cmd);
+        }
+        self.cmds
+            .get_mut(device)
+            .ok_or(ScheduleError::NoSuchDevice(device.min(255) as u8))?
+            .push(cmd)
+            .map_err(|_| ScheduleError::TooManyCommands)
+    }
+
+    /// [`Batch::push`] for a batch with a window budget.
+    fn push_within_budget(&mut self, device: usize, cmd: Command) -> Result<(), ScheduleError> {
         let (Some(list), Some(lay)) = (self.cmds.get_mut(device), self.lay.get_mut(device)) else {
             return Err(ScheduleError::NoSuchDevice(device.min(255) as u8));
         };
         if list.is_full() {
             return Err(ScheduleError::TooManyCommands);
         }
+        let resp = cmd.response_len();
+        if lay.count == 0 && resp > 0 {
+            // A leading read: window 0 and its response, at most 4 windows
+            // of a budget of at least 5 (the control tick's every batch).
+            lay.count = 1;
+            lay.head = resp;
+            self.span.reads_end = self.span.reads_end.max(resp.saturating_add(1));
+            return list.push(cmd).map_err(|_| ScheduleError::TooManyCommands);
+        }
+        if lay.count == 1 && lay.head > 0 && resp == 0 && self.span.tail == 0 {
+            // A write after the leading read (the streaming tick's Run):
+            // windows 1 to 4, so the batch stays at most 5 windows long
+            // while no stream ends in a response.
+            let k = cmd.wire_len();
+            lay.count = 2;
+            lay.len = k;
+            self.span.sync = self.span.sync.max(k.saturating_add(1));
+            return list.push(cmd).map_err(|_| ScheduleError::TooManyCommands);
+        }
         let (new, _) = lay.with(cmd);
         let span = self.span.with(&new);
         if span.windows() > self.budget {
             return Err(ScheduleError::TooManyWindows);
         }
-        list.push(cmd).map_err(|_| ScheduleError::TooManyCommands)?;
         *lay = new;
         self.span = span;
-        Ok(())
+        list.push(cmd).map_err(|_| ScheduleError::TooManyCommands)
     }
 
     /// Commands queued for `device`.
@@ -312,8 +346,10 @@ impl Batch {
         for c in self.cmds.iter_mut() {
             c.clear();
         }
-        self.lay = [Lay::NEW; MAX_DEVICES];
-        self.span = Span::default();
+        if self.budget < MAX_WINDOWS as u8 {
+            self.lay = [Lay::NEW; MAX_DEVICES];
+            self.span = Span::default();
+        }
     }
 
     /// Empty the batch and make it one for `n` devices (clamped to [`MAX_DEVICES`]).
@@ -912,7 +948,6 @@ mod tests {
         // Run in windows 0..=3; GetParam in window 0, its 3 bytes in 1..=3
         // (right-aligned it would take windows 3..=6).
         assert_eq!(plan.windows(), 4);
-        assert_eq!(b.windows_at_most(), 4);
         assert_eq!(plan.window(0).unwrap(), &[0x21, 0x51]);
         assert_eq!(plan.window(3).unwrap(), &[0x00, 0x05]);
         let mut rx: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS];
@@ -934,7 +969,6 @@ mod tests {
         // Device 1's stream (HardStop, GetParam) ends with Run's in window
         // 3; the response follows in 4..=6.
         assert_eq!(plan.windows(), 7);
-        assert_eq!(b.windows_at_most(), 7);
         assert_eq!(plan.sync_window(), 3);
     }
 
@@ -954,7 +988,7 @@ mod tests {
         assert_eq!(b.commands(1).len(), 2);
         let plan = Plan::new(&b).unwrap();
         assert!(plan.windows() <= 5);
-        assert_eq!(plan.windows(), b.windows_at_most());
+        assert_eq!(Some(plan.windows()), b.windows_at_most());
     }
 
     #[test]

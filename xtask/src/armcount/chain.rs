@@ -98,6 +98,12 @@ pub fn chain_cpu(args: &[String]) -> Result {
         "CHAIN_DRIVER_TICK_CYCLES",
         batch.tick_cycles,
         write_flag(args),
+    )?;
+    // The overlapped tick's computation is preempted by these.
+    cost::check(
+        "CHAIN_DRIVER_ISR_CYCLES",
+        batch.isr_cycles,
+        write_flag(args),
     )
 }
 

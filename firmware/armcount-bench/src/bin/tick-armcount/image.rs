@@ -120,6 +120,11 @@ fn axis_group() -> AxisGroup {
             semihosting::process::exit(3)
         }
     }
+    // The batches' window budget the firmware gives 8 chips at this build's
+    // rate (`rate::fit`: 5 windows at 5 kHz, where the overlapped tick
+    // runs; no limit at 1 kHz).
+    let rate = bridge_logic::rate::fit(bridge_logic::rate::TICK_HZ, 8);
+    group.set_window_budget(usize::from(rate.windows));
     group
 }
 

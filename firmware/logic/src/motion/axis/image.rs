@@ -88,6 +88,11 @@ impl ChipImage {
             .find_map(|r| self.get(r).map(|v| (r, v)))
     }
 
+    /// Some register waits to be written.
+    pub(super) fn dirty(&self) -> bool {
+        self.dirty != 0
+    }
+
     pub(super) fn written(&mut self, reg: Register) {
         let bit = 1u32 << reg.address();
         self.dirty &= !bit;

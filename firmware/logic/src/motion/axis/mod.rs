@@ -239,67 +239,108 @@ struct Readback {
 struct Sent {
     /// The tick of the plan (the stamp of what it reads).
     tick: u64,
-    /// The plan sent more than its read.
-    commands: bool,
-    read: Option<Read>,
-    /// Where the chip should be as the read reaches it (`None`: the
+    /// Where the chip should be as the read reaches it (valid unless the
     /// profile has jumped since, to where the chip is: a following error
     /// against the old profile means nothing).
-    expected: Option<i64>,
+    expected: i64,
     /// The clock-rate estimate's command sum and window epoch at the plan.
     commanded: i64,
     epoch: u32,
+    read: Option<Read>,
+    expected_valid: bool,
+    /// The plan sent more than its read.
+    commands: bool,
+}
+
+impl Sent {
+    const NONE: Sent = Sent {
+        tick: 0,
+        expected: 0,
+        commanded: 0,
+        epoch: 0,
+        read: None,
+        expected_valid: false,
+        commands: false,
+    };
 }
 
 /// The batches in flight, oldest first (at most two: the overlapped tick's
-/// batch on the bus and the one planned behind it).
+/// batch on the bus and the one planned behind it), a ring of two.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-struct InFlight([Option<Sent>; 2]);
+struct InFlight {
+    slots: [Sent; 2],
+    /// The oldest one's slot (0 or 1) and how many there are (0 to 2).
+    head: u8,
+    len: u8,
+}
 
 impl InFlight {
-    const EMPTY: InFlight = InFlight([None, None]);
+    const EMPTY: InFlight = InFlight {
+        slots: [Sent::NONE; 2],
+        head: 0,
+        len: 0,
+    };
 
     /// A new plan's record (a third drops the oldest: a tick that planned
     /// without ending its batch, whose replies never come).
+    #[inline]
     fn push(&mut self, s: Sent) {
-        let [a, b] = &mut self.0;
-        if a.is_none() {
-            *a = Some(s);
-        } else if b.is_none() {
-            *b = Some(s);
-        } else {
-            *a = b.replace(s);
+        if self.len == 2 {
+            self.head ^= 1;
+            self.len = 1;
         }
+        let at = usize::from((self.head ^ self.len) & 1);
+        if let Some(slot) = self.slots.get_mut(at) {
+            *slot = s;
+        }
+        self.len += 1;
     }
 
     /// The oldest batch's record (its replies are being absorbed).
+    #[inline]
     fn pop(&mut self) -> Option<Sent> {
-        let [a, b] = &mut self.0;
-        let s = a.take();
-        *a = b.take();
+        if self.len == 0 {
+            return None;
+        }
+        let s = self.slots.get(usize::from(self.head & 1)).copied();
+        self.head ^= 1;
+        self.len -= 1;
         s
+    }
+
+    /// The records in flight.
+    fn each(&mut self, mut f: impl FnMut(&mut Sent)) {
+        for k in 0..self.len {
+            if let Some(s) = self.slots.get_mut(usize::from((self.head ^ k) & 1)) {
+                f(s);
+            }
+        }
     }
 
     /// A batch in flight carries commands (not only its read): until its
     /// replies are in, the chip may not have them.
     fn commands(&self) -> bool {
-        self.0.iter().flatten().any(|s| s.commands)
+        let [a, b] = &self.slots;
+        match (self.len, self.head) {
+            (0, _) => false,
+            (1, 0) => a.commands,
+            (1, _) => b.commands,
+            _ => a.commands || b.commands,
+        }
     }
 
     /// The profile jumped: no batch in flight measures a following error.
     fn void_expected(&mut self) {
-        for s in self.0.iter_mut().flatten() {
-            s.expected = None;
-        }
+        self.each(|s| s.expected_valid = false);
     }
 
     /// Forget what the batches in flight read of `kind` (`None`: every read).
     fn drop_reads(&mut self, kind: Option<Read>) {
-        for s in self.0.iter_mut().flatten() {
+        self.each(|s| {
             if kind.is_none() || s.read == kind {
                 s.read = None;
             }
-        }
+        });
     }
 }
 

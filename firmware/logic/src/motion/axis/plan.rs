@@ -47,12 +47,6 @@ impl Axis {
     /// Emit this tick's commands for the axis's chip (read-back first).
     /// `emit` returns false when the batch is full; the axis then retries next tick.
     pub fn plan(&mut self, mut emit: impl FnMut(Command) -> bool) {
-        let mut sent = 0usize;
-        let mut emit = |cmd: Command| {
-            let ok = emit(cmd);
-            sent += usize::from(ok);
-            ok
-        };
         let mut used = 0usize;
         let mut leaves_hiz = false;
         let mut counted = |cmd: Command| {
@@ -65,29 +59,31 @@ impl Axis {
             ok
         };
         self.plan_commands(&mut counted);
-        if self.is_configured() {
-            self.plan_spare_slots(used, leaves_hiz, &mut emit);
+        // (Almost every tick nothing is dirty and nothing is asked.)
+        let spare_work = self.image.dirty() || self.ext_read.is_some();
+        if spare_work && self.is_configured() {
+            used = self.plan_spare_slots(used, leaves_hiz, &mut emit);
         }
         let read = self.rb.read.take();
-        let sent = Sent {
+        self.rb.in_flight.push(Sent {
             tick: self.tick,
-            commands: sent > usize::from(read.is_some()),
+            commands: used > usize::from(read.is_some()),
             read,
-            expected: Some(self.rb.expected_at_read),
+            expected: self.rb.expected_at_read,
+            expected_valid: true,
             commanded: self.rate.commanded,
             epoch: self.rate.epoch,
-        };
-        self.rb.in_flight.push(sent);
+        });
     }
 
     /// The slots `used` left: changed configuration registers, then an
-    /// extension-space register read.
+    /// extension-space register read. The commands used after them.
     fn plan_spare_slots(
         &mut self,
         mut used: usize,
         leaves_hiz: bool,
         emit: &mut impl FnMut(Command) -> bool,
-    ) {
+    ) -> usize {
         // Spare slots carry configuration registers that changed, each only
         // when the chip takes it ([`Axis::chip_takes`]): nothing starts the
         // chip this tick for a WS one, nothing ends HiZ for a WH one. So the
@@ -111,9 +107,11 @@ impl Axis {
                     r.reg == Register::AbsPos && self.rb.read == Some(Read::Position);
                 if !same_as_read && emit(Command::GetParam(r.reg)) {
                     r.index = Some((self.tick, used));
+                    used += 1;
                 }
             }
         }
+        used
     }
 
     /// A STATUS read after the last command shows the bridges off (HiZ)
@@ -431,12 +429,16 @@ impl Axis {
             let l = units::clamp_to_chip(self.limits.requested, self.cfg.logical_shift);
             let acc = units::chip_ramp_reg(l.acc, self.cfg.logical_shift);
             let dec = units::chip_ramp_reg(l.dec, self.cfg.logical_shift);
-            if emit(Command::SetParam(Register::Acc, acc)) {
+            // Each only once it has gone out (a batch with little room
+            // takes one a tick).
+            if acc != self.limits.acc && emit(Command::SetParam(Register::Acc, acc)) {
                 self.limits.acc = acc;
-                if emit(Command::SetParam(Register::Dec, dec)) {
-                    self.limits.dec = dec;
-                    self.homing_ramps = false;
-                }
+            }
+            if acc == self.limits.acc
+                && (dec == self.limits.dec || emit(Command::SetParam(Register::Dec, dec)))
+            {
+                self.limits.dec = dec;
+                self.homing_ramps = false;
             }
             return;
         }

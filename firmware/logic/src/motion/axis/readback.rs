@@ -57,9 +57,8 @@ impl Axis {
             rb.chip_pos += i64::from(delta);
             // Only while the chip follows: a chip still stopping or landing
             // when streaming began runs its own ramps.
-            let follows = sent
-                .expected
-                .is_some_and(|e| (e - rb.chip_pos).abs() <= RATE_MAX_ERROR);
+            let follows =
+                sent.expected_valid && (sent.expected - rb.chip_pos).abs() <= RATE_MAX_ERROR;
             if self.state == AxisState::Streaming && rb.raw.is_some() && follows {
                 self.rate.take(
                     i64::from(delta),
@@ -76,10 +75,12 @@ impl Axis {
         rb.pos_at = sent.tick;
         // Measured in every state: when a move starts while the chip is
         // still stopping or landing, the correction starts at once.
-        rb.error = match sent.expected {
-            _ if self.stop.zero => 0,
-            Some(e) => e - rb.chip_pos,
-            None => rb.error,
+        rb.error = if self.stop.zero {
+            0
+        } else if sent.expected_valid {
+            sent.expected - rb.chip_pos
+        } else {
+            rb.error
         };
     }
 

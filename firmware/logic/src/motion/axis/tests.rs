@@ -130,3 +130,55 @@ fn limits_beyond_the_chip_are_clamped_for_the_profile() {
     assert_eq!(a.requested_limits().max_speed, 65_535);
     assert_eq!(a.profile().limits(), a.limit_cap());
 }
+
+fn sent(tick: u64, read: Option<Read>, commands: bool) -> Sent {
+    Sent {
+        tick,
+        read,
+        commands,
+        expected_valid: true,
+        ..Sent::NONE
+    }
+}
+
+#[test]
+fn batches_in_flight_come_back_oldest_first() {
+    let mut q = InFlight::EMPTY;
+    assert_eq!(q.pop(), None);
+    for round in 0..3u64 {
+        q.push(sent(2 * round, Some(Read::Position), false));
+        q.push(sent(2 * round + 1, Some(Read::Status), true));
+        assert!(q.commands());
+        assert_eq!(q.pop().map(|s| s.tick), Some(2 * round));
+        assert!(q.commands(), "the second still carries commands");
+        assert_eq!(q.pop().map(|s| s.tick), Some(2 * round + 1));
+        assert_eq!(q.pop(), None);
+        assert!(!q.commands());
+    }
+}
+
+#[test]
+fn a_third_batch_in_flight_drops_the_oldest() {
+    let mut q = InFlight::EMPTY;
+    for t in 1..=3 {
+        q.push(sent(t, None, false));
+    }
+    assert_eq!(q.pop().map(|s| s.tick), Some(2));
+    assert_eq!(q.pop().map(|s| s.tick), Some(3));
+    assert_eq!(q.pop(), None);
+}
+
+#[test]
+fn reads_and_expectations_in_flight_can_be_voided() {
+    let mut q = InFlight::EMPTY;
+    q.push(sent(1, Some(Read::Position), false));
+    q.push(sent(2, Some(Read::Status), false));
+    q.drop_reads(Some(Read::Position));
+    q.void_expected();
+    let (a, b) = (q.pop().unwrap(), q.pop().unwrap());
+    assert_eq!((a.read, b.read), (None, Some(Read::Status)));
+    assert!(!a.expected_valid && !b.expected_valid);
+    q.push(sent(3, Some(Read::Status), false));
+    q.drop_reads(None);
+    assert_eq!(q.pop().unwrap().read, None);
+}
