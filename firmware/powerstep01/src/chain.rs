@@ -10,7 +10,12 @@
 //!   device, the [`Plan`] right-aligns every device's command bytes so that
 //!   the last command of every device completes in the same window: devices
 //!   with less to send get leading NOPs, never trailing ones, so all axes
-//!   start in the same CS rise.
+//!   start in the same CS rise. A device's leading read (its first
+//!   command, if it reads) goes in window 0 instead: it needs no sync, and
+//!   its response then overlaps the others' commands.
+//! * **Window budget.** A [`Batch`] given a budget
+//!   ([`Batch::set_window_budget`]) refuses a command that would make its
+//!   plan longer (`TooManyWindows`): what a control tick's period holds.
 //! * **No NOP mid-argument.** A device's commands are laid out back to back,
 //!   so no filler byte ever lands inside another command's argument bytes.
 //! * **Responses.** A GetParam/GetStatus response comes out in the windows
