@@ -81,7 +81,7 @@ impl<B: ChainBus> Bridge<B> {
             .zip(self.group.iter())
         {
             *l = AxisOutputs {
-                moving: !a.is_settled(),
+                moving: !a.is_at_rest(),
                 fault: d.faults() != 0,
                 idle: d.status() == DriverStatus::Idle,
             };

@@ -216,7 +216,7 @@ impl Device {
                 }
             }
         }
-        if !axis.is_settled() {
+        if !axis.is_at_rest() {
             self.last_motion_ms = now_ms;
         }
         self.idle = now_ms.saturating_sub(self.last_motion_ms) >= IDLE_AFTER_MS;

@@ -557,9 +557,18 @@ impl Axis {
     pub fn fault(&self) -> Option<AxisFault> {
         self.fault
     }
-    /// Nothing moving: profile settled, chip landed and confirmed.
+    /// Nothing moving: profile settled, chip landed and confirmed, and
+    /// every command has reached the chip (no batch in flight carries more
+    /// than its read: what a reset or a save waits for).
     pub fn is_settled(&self) -> bool {
-        self.state == AxisState::Idle && self.profile.is_settled() && !self.rb.in_flight.commands()
+        self.is_at_rest() && !self.rb.in_flight.commands()
+    }
+
+    /// Nothing moving: profile settled, chip landed and confirmed (a
+    /// register write may still be on its way: the idle-current timer and
+    /// the panel's lamp do not count it as motion).
+    pub fn is_at_rest(&self) -> bool {
+        self.state == AxisState::Idle && self.profile.is_settled()
     }
     /// Every register the bridge configures has been written since the
     /// chip's last reset.
