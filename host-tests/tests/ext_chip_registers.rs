@@ -307,3 +307,46 @@ fn a_register_write_the_chip_refused_is_written_again_once_it_can_be() {
     assert!(b.chip(0).is_hiz(), "asleep: bridges off again");
     assert_eq!(b.chip(0).register(Register::GateCfg1), 0x0AB);
 }
+
+/// Eight axes streaming at 5 kHz, overlapped, every batch within the 5
+/// windows the period holds: a register read finds no room beside the
+/// regular read and Run, and goes in a position read's place instead.
+#[test]
+fn a_register_read_beside_eight_streaming_axes_under_a_five_window_budget_arrives() {
+    use bridge_logic::postep60::Request;
+    use host_tests::clock::SimClock;
+    use host_tests::sim_bridge::{chip, new_bridge_at, tick_overlapped};
+    let mut b = new_bridge_at(8, Settings::FACTORY, PowerStage::REFERENCE, 200);
+    tick_overlapped(&mut b, 8, 200);
+    let mut clock = SimClock::new(200);
+    clock.run(&mut b, 200);
+    for k in 0..8 {
+        let _ = b.request(k, Request::SetMode(4));
+        let _ = b.request(k, Request::RunSleep(1));
+        b.request(k, Request::SetPosition(2_000_000)).unwrap();
+    }
+    clock.run(&mut b, 2000);
+    for (reg, words) in [
+        (Register::Config, 1),
+        (Register::Speed, 2),
+        (Register::AbsPos, 2),
+    ] {
+        for k in [0, 5] {
+            let address = 0x0100 | u16::from(reg.address());
+            let mut out = vec![0u16; words];
+            let mut ticks = 0;
+            while b.ext_read(k, address, &mut out).is_err() {
+                clock.tick(&mut b);
+                ticks += 1;
+                assert!(
+                    ticks < 20,
+                    "{reg:?} of axis {k} not read after {ticks} ticks"
+                );
+            }
+            if reg == Register::Config {
+                assert_eq!(u32::from(out[0]), chip(&b, k).register(reg));
+            }
+            assert!(!b.axis(k).unwrap().is_at_rest(), "axis {k} still streams");
+        }
+    }
+}

@@ -421,3 +421,32 @@ fn without_axes_no_batch_is_started() {
     let step = b.tick_pipelined(1, BatchState::Idle, |_, _| panic!("nothing to clock"));
     assert_eq!(step, PipelinedTick::NoBatch);
 }
+
+/// Overlapped, a failed batch drops the one planned behind it (that tick
+/// sends nothing): both count toward the chain's death, so a chain whose
+/// every batch fails is dead after `CHAIN_DEAD_TICKS` ticks, as in a row.
+#[test]
+fn overlapped_a_chain_whose_every_batch_fails_is_dead_after_ten_ticks() {
+    let mut b = manual(2);
+    b.set_overlapped(true);
+    let mut now = 0;
+    run_manual(&mut b, &mut now, 30);
+    assert!(b.axis(0).is_some_and(|a| a.is_configured()));
+    let mut rx = EMPTY;
+    let mut pending = true;
+    let mut ticks = 0;
+    while !b.chain_dead() {
+        now += 1;
+        ticks += 1;
+        let previous = if pending {
+            BatchState::Done(Err(()))
+        } else {
+            BatchState::Idle
+        };
+        let step = b.tick_pipelined(now, previous, |plan, bus| clock(plan, bus, &mut rx));
+        pending = step == PipelinedTick::Started;
+        assert!(ticks <= 10, "not dead after {ticks} failed ticks");
+    }
+    // The batch the last good tick started is the first of the ten.
+    assert_eq!(ticks, 9);
+}

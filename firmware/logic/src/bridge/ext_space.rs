@@ -159,7 +159,7 @@ impl<B: ChainBus> Bridge<B> {
         let (Some(d), Some(a)) = (self.devices.get_mut(k), self.group.axis_mut(k)) else {
             return Err(ExtError::IllegalAddress);
         };
-        let rests = a.is_settled() && !a.status().busy();
+        let rests = a.is_at_rest() && !a.status().busy();
         let allowed = match reg.access() {
             Access::Always => true,
             Access::WhenStopped => rests,

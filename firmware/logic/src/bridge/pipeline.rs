@@ -140,7 +140,14 @@ impl<B: ChainBus> Bridge<B> {
         };
         // First the batch the last tick planned (unless the one before it
         // failed: then it goes unsent), then the previous one's replies.
-        let ready = core::mem::take(&mut self.overlap.ready) && !failed;
+        let planned = core::mem::take(&mut self.overlap.ready);
+        let ready = planned && !failed;
+        if planned && failed {
+            // The tick whose batch goes unsent counts toward the chain's
+            // death as a failed one ([`Bridge::chain_dead`] after
+            // `CHAIN_DEAD_TICKS` in a row, as in a row).
+            self.failed_ticks = self.failed_ticks.saturating_add(1);
+        }
         let started = ready.then(|| {
             let plan = self.group.launch();
             match self.chain.begin(plan) {

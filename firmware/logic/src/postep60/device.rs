@@ -295,7 +295,7 @@ impl Device {
         } else {
             self.faults &= !fault::STD;
         }
-        if newly != 0 && !axis.is_settled() {
+        if newly != 0 && !axis.is_at_rest() {
             axis.stop_now();
         }
     }

@@ -165,6 +165,7 @@ impl Axis {
             reg,
             index: None,
             value: None,
+            lead: false,
         });
         None
     }
@@ -240,8 +241,11 @@ impl Axis {
     }
 
     /// HardStop holds the motor; asleep, the bridges must stay off.
+    /// How a stop ends: bridges off while asleep or while the chip is off
+    /// for an overcurrent or thermal shutdown (a HardStop would switch
+    /// them on again), else holding.
     pub(super) fn stop_command(&self) -> Command {
-        if self.asleep {
+        if self.asleep || self.chip_off_for_fault {
             Command::HardHiZ
         } else {
             Command::HardStop

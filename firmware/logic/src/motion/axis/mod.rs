@@ -424,6 +424,9 @@ struct RegRead {
     index: Option<(u64, usize)>,
     /// The value and the tick it was read at.
     value: Option<(u32, u64)>,
+    /// The batch had no room for it after the regular read (a window
+    /// budget): the next position read's slot carries it instead.
+    lead: bool,
 }
 
 /// A register value read for the extension space stays good this many ticks.

@@ -102,12 +102,18 @@ impl Axis {
         }
         // An extension-space register read.
         if let Some(r) = self.ext_read.as_mut() {
-            if r.value.is_none() && r.index.is_none() && used < MAX_COMMANDS {
+            if r.value.is_none() && r.index.is_none() {
                 let same_as_read =
                     r.reg == Register::AbsPos && self.rb.read == Some(Read::Position);
-                if !same_as_read && emit(Command::GetParam(r.reg)) {
+                if same_as_read {
+                    // Waits for the next tick.
+                } else if used < MAX_COMMANDS && emit(Command::GetParam(r.reg)) {
                     r.index = Some((self.tick, used));
                     used += 1;
+                } else {
+                    // No room beside the regular read: it takes the next
+                    // position read's place.
+                    r.lead = true;
                 }
             }
         }
@@ -226,6 +232,23 @@ impl Axis {
         } else {
             Read::Status
         };
+        // An extension-space read that found no room beside the regular
+        // read goes in a position read's place (never a STATUS read's: it
+        // sees faults and switches); a read of ABS_POS is both.
+        if let Some(r) = self.ext_read.as_mut() {
+            let waiting = r.lead && r.value.is_none() && r.index.is_none();
+            if waiting && read == Read::Position {
+                let reg = r.reg;
+                if emit(Command::GetParam(reg)) {
+                    r.index = Some((self.tick, 0));
+                    r.lead = false;
+                    self.rb.read = (reg == Register::AbsPos).then_some(Read::Position);
+                } else {
+                    self.rb.read = None;
+                }
+                return;
+            }
+        }
         let read_cmd = match read {
             Read::Position => Command::GetParam(Register::AbsPos),
             Read::Status => Command::GetStatus,
