@@ -411,9 +411,9 @@ impl Plan {
     /// Refill this plan with `batch`. On error the plan is left empty.
     ///
     /// Every device's commands are first laid out in a stream of its own
-    /// (command bytes back to back, NOP padding before a second response),
-    /// then the streams are right-aligned on the longest one and transposed
-    /// into windows. The control tick runs this every tick: each command is
+    /// (command bytes back to back, NOP padding before a second response;
+    /// a leading read apart, in window 0), then the streams are
+    /// right-aligned on the longest one and transposed into windows. The control tick runs this every tick: each command is
     /// encoded once and every index is bounded by a constant array length;
     /// its common batch, a read and a Run per device, is laid out directly
     /// (the same plan).
