@@ -100,10 +100,7 @@ impl<B: ChainBus> Bridge<B> {
             return self.tick_overlapped(now_ms, previous, start);
         }
         match previous {
-            BatchState::Running => {
-                self.timing.overruns = self.timing.overruns.saturating_add(1);
-                return PipelinedTick::Overrun;
-            }
+            BatchState::Running => return self.overrun(),
             BatchState::Done(rx) => self.tick_end(rx),
             BatchState::Idle => {}
         }
@@ -131,10 +128,7 @@ impl<B: ChainBus> Bridge<B> {
         start: impl FnOnce(&Plan, &mut B) -> Result<(), B::Error>,
     ) -> PipelinedTick {
         let failed = match &previous {
-            BatchState::Running => {
-                self.timing.overruns = self.timing.overruns.saturating_add(1);
-                return PipelinedTick::Overrun;
-            }
+            BatchState::Running => return self.overrun(),
             BatchState::Done(rx) => rx.is_err(),
             BatchState::Idle => false,
         };
@@ -220,6 +214,12 @@ impl<B: ChainBus> Bridge<B> {
         self.overlap.rx = out;
         // A batch that failed was ended in the tick.
         self.overlap.done = clocked;
+    }
+
+    /// A tick that found its batch still on the bus: skipped, counted.
+    fn overrun(&mut self) -> PipelinedTick {
+        self.timing.overruns = self.timing.overruns.saturating_add(1);
+        PipelinedTick::Overrun
     }
 
     /// Control ticks that overran: their own computation took longer than

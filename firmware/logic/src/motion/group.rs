@@ -94,11 +94,7 @@ impl AxisGroup {
 
     /// The plan being made (`making`) or the other one.
     fn slot(&self, making: bool) -> &Plan {
-        if self.second == making {
-            &self.plans.1
-        } else {
-            &self.plans.0
-        }
+        pick(&self.plans, self.second == making)
     }
 
     /// First half of a tick: every axis plans its commands; one plan for the chain.
@@ -108,11 +104,8 @@ impl AxisGroup {
         for (d, axis) in self.axes.iter_mut().enumerate() {
             axis.plan(|cmd| batch.push(d, cmd).is_ok());
         }
-        let plan = if self.second {
-            &mut self.plans.1
-        } else {
-            &mut self.plans.0
-        };
+        let [a, b] = [&mut self.plans.0, &mut self.plans.1];
+        let plan = if self.second { b } else { a };
         plan.schedule(&self.batch)?;
         Ok(plan)
     }
@@ -137,18 +130,8 @@ impl AxisGroup {
     ) -> Result<(), ChainError<B::Error>> {
         // The plan being made is the one before the launch until the next
         // prepare.
-        let plan = if self.second == just_launched {
-            &self.plans.1
-        } else {
-            &self.plans.0
-        };
+        let plan = pick(&self.plans, self.second == just_launched);
         chain.end(plan, rx, &mut self.replies)
-    }
-
-    /// Every axis takes the replies [`AxisGroup::end_previous`] decoded
-    /// (`ok`), or sets its chip up again (the batch failed).
-    pub fn absorb_decoded(&mut self, ok: bool) {
-        self.absorb_result(ok);
     }
 
     /// Second half of a tick: every axis takes its replies.
@@ -182,12 +165,12 @@ impl AxisGroup {
         chain: &mut Chain<B>,
     ) -> Result<TickReport, ChainError<B::Error>> {
         if let Err(e) = self.prepare() {
-            self.absorb_result(false);
+            self.absorb_decoded(false);
             return Err(ChainError::Schedule(e));
         }
         let plan = self.slot(true);
         if let Err(e) = chain.begin(plan) {
-            self.absorb_result(false);
+            self.absorb_decoded(false);
             return Err(e);
         }
         Ok(TickReport {
@@ -210,17 +193,15 @@ impl AxisGroup {
         chain: &mut Chain<B>,
         rx: Result<&Frames, B::Error>,
     ) -> Result<(), ChainError<B::Error>> {
-        let plan = if self.second {
-            &self.plans.1
-        } else {
-            &self.plans.0
-        };
-        let result = chain.end(plan, rx, &mut self.replies);
-        self.absorb_result(result.is_ok());
+        let result = chain.end(pick(&self.plans, self.second), rx, &mut self.replies);
+        self.absorb_decoded(result.is_ok());
         result
     }
 
-    fn absorb_result(&mut self, ok: bool) {
+    /// Every axis takes the replies decoded last ([`AxisGroup::tick_end`],
+    /// [`AxisGroup::end_previous`]) if `ok`, or sets its chip up again (the
+    /// batch failed).
+    pub fn absorb_decoded(&mut self, ok: bool) {
         for (d, axis) in self.axes.iter_mut().enumerate() {
             if ok {
                 axis.absorb(&self.replies, d);
@@ -229,5 +210,14 @@ impl AxisGroup {
                 axis.on_chain_error();
             }
         }
+    }
+}
+
+/// `plans.1` if `second`, else `plans.0`.
+fn pick(plans: &(Plan, Plan), second: bool) -> &Plan {
+    if second {
+        &plans.1
+    } else {
+        &plans.0
     }
 }

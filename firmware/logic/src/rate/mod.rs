@@ -246,6 +246,12 @@ impl BusTiming {
 /// the driver on the RM0090 model at these clocks says the same.
 pub const BOARD_BUS: BusTiming = BusTiming::of(84_000_000, 84_000_000, 4_000_000, 800, 350);
 
+/// `cycles` of the measured core clock ([`measured::SYSCLK_HZ`]), ns
+/// (rounded up).
+const fn cycles_ns(cycles: u64) -> u64 {
+    (cycles * 1_000_000_000).div_ceil(measured::SYSCLK_HZ as u64)
+}
+
 /// The tick's computation for `chips` axes, ns: the measured cycles of the
 /// worst 8-axis tick ([`measured`]: every axis starting a move at once;
 /// the costlier of the 1 and 5 kHz builds) per axis, plus the chain
@@ -255,7 +261,7 @@ pub const fn compute_ns(chips: usize) -> u64 {
     let t5 = measured::TICK_CYCLES_8_AXES_5KHZ as u64;
     let per_axis = (if t1 > t5 { t1 } else { t5 }).div_ceil(8);
     let cycles = chips as u64 * per_axis + measured::CHAIN_DRIVER_TICK_CYCLES as u64;
-    (cycles * 1_000_000_000).div_ceil(measured::SYSCLK_HZ as u64)
+    cycles_ns(cycles)
 }
 
 /// Time one streaming tick needs with `chips` on a chain timed by `bus`,
@@ -281,8 +287,7 @@ pub const LAUNCH_SLACK_NS: u64 = 2_000;
 /// driver's hand-over and start ([`measured::CHAIN_DRIVER_TICK_CYCLES`])
 /// and [`LAUNCH_SLACK_NS`].
 pub const fn launch_ns() -> u64 {
-    (measured::CHAIN_DRIVER_TICK_CYCLES as u64 * 1_000_000_000).div_ceil(measured::SYSCLK_HZ as u64)
-        + LAUNCH_SLACK_NS
+    cycles_ns(measured::CHAIN_DRIVER_TICK_CYCLES as u64) + LAUNCH_SLACK_NS
 }
 
 /// Time one overlapped streaming tick needs with `chips` on a chain timed
@@ -290,8 +295,7 @@ pub const fn launch_ns() -> u64 {
 /// interrupts, which preempt it) and the batch (started at the tick's
 /// beginning, after the driver's hand-over and start).
 pub const fn overlapped_need_ns_on(chips: usize, bus: BusTiming) -> u64 {
-    let isr = (measured::CHAIN_DRIVER_ISR_CYCLES as u64 * 1_000_000_000)
-        .div_ceil(measured::SYSCLK_HZ as u64);
+    let isr = cycles_ns(measured::CHAIN_DRIVER_ISR_CYCLES as u64);
     let compute = compute_ns(chips) + if chips == 0 { 0 } else { isr };
     let batch = launch_ns() + bus.batch_ns(STREAM_WINDOWS, chips as u32);
     if compute > batch {
