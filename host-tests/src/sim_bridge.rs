@@ -3,7 +3,7 @@
 use bridge_logic::bridge::{Bridge, SettingsSource};
 use bridge_logic::postep60::analog::AnalogSample;
 use bridge_logic::postep60::{PowerStage, Settings};
-use bridge_logic::powerstep::ChainBus;
+use bridge_logic::powerstep::{ChainBus, Command};
 use stepbridge_sim::{Powerstep01, SimChain};
 
 /// The harnesses' control period.
@@ -97,6 +97,13 @@ pub fn all_settled(bridge: &Bridge<SimChain>) -> bool {
 /// Simulated chip `k` (panics if there is none: a test bug).
 pub fn chip(bridge: &Bridge<SimChain>, k: usize) -> &Powerstep01 {
     bridge.chain().bus().device(k).expect("chip")
+}
+
+/// The last `n` commands chip `k` received, oldest first (for a failing
+/// test's message).
+pub fn last_received(bridge: &Bridge<SimChain>, k: usize, n: usize) -> Vec<Command> {
+    let all: Vec<Command> = chip(bridge, k).received().copied().collect();
+    all[all.len().saturating_sub(n)..].to_vec()
 }
 
 pub fn chip_mut(bridge: &mut Bridge<SimChain>, k: usize) -> &mut Powerstep01 {

@@ -1017,16 +1017,17 @@ fn a_write_longer_than_its_command_does_not_move_and_is_counted() {
     assert_eq!(b.chip(0).abs_pos(), phys(160));
 }
 
-#[test]
-fn an_overcurrent_while_moving_switches_the_bridges_off_through_the_device_model() {
+/// `fault` while axis 0 streams: the bridges go off and stay off, and the
+/// shaft stands (through the device model, which stops the axis too).
+fn a_fault_while_moving_switches_the_bridges_off(fault: Fault) {
     let mut b = bench();
     // Far away: the axis streams when the fault comes.
     b.write(A0, &[0x50, 0x40, 0x9C, 0, 0]);
     b.run(300);
     assert!(!b.chip(0).is_hiz(), "moving");
-    b.chip_mut(0).inject(Fault::Overcurrent);
+    b.chip_mut(0).inject(fault);
     b.run(20);
-    assert!(b.chip(0).is_hiz(), "bridges off after an overcurrent");
+    assert!(b.chip(0).is_hiz(), "bridges off after {fault:?}");
     let p = b.chip(0).abs_pos();
     b.run(500);
     assert_eq!(b.chip(0).abs_pos(), p, "and nothing moves after it");
@@ -1034,15 +1035,11 @@ fn an_overcurrent_while_moving_switches_the_bridges_off_through_the_device_model
 }
 
 #[test]
+fn an_overcurrent_while_moving_switches_the_bridges_off_through_the_device_model() {
+    a_fault_while_moving_switches_the_bridges_off(Fault::Overcurrent);
+}
+
+#[test]
 fn a_thermal_shutdown_while_moving_switches_the_bridges_off_through_the_device_model() {
-    let mut b = bench();
-    b.write(A0, &[0x50, 0x40, 0x9C, 0, 0]);
-    b.run(300);
-    assert!(!b.chip(0).is_hiz(), "moving");
-    b.chip_mut(0).inject(Fault::ThermalShutdown);
-    b.run(20);
-    assert!(b.chip(0).is_hiz(), "bridges off after a thermal shutdown");
-    let p = b.chip(0).abs_pos();
-    b.run(500);
-    assert_eq!(b.chip(0).abs_pos(), p, "and nothing moves after it");
+    a_fault_while_moving_switches_the_bridges_off(Fault::ThermalShutdown);
 }

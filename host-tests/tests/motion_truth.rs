@@ -234,8 +234,7 @@ impl Truth {
         let states: Vec<String> = (0..self.axes())
             .map(|k| {
                 let a = self.bridge.axis(k).expect("axis");
-                let all: Vec<_> = chip(&self.bridge, k).received().collect();
-                let last = &all[all.len().saturating_sub(6)..];
+                let last = host_tests::sim_bridge::last_received(&self.bridge, k, 6);
                 format!(
                     "axis {k}: {:?} {:?} v={} limits {:?} chip {} last {last:?}",
                     a.state(),

@@ -827,8 +827,7 @@ impl World {
         let states: Vec<String> = (0..self.n())
             .map(|k| {
                 let a = self.bridge.axis(k).expect("axis");
-                let all: Vec<_> = chip(&self.bridge, k).received().collect();
-                let last = &all[all.len().saturating_sub(4)..];
+                let last = host_tests::sim_bridge::last_received(&self.bridge, k, 4);
                 format!(
                     "axis {k}: {:?} homing {} {:?} last {last:?}",
                     a.state(),
