@@ -74,6 +74,31 @@ impl Divisor {
     }
 }
 
+/// A [`Divisor`] that keeps its last signed quotient: while an axis
+/// cruises, the control tick converts the same speed and the same
+/// following error tick after tick.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Recalled {
+    div: Divisor,
+    /// (n, n / d) of the last division (0 / d = 0 to begin with).
+    last: (i64, i64),
+}
+
+impl Recalled {
+    pub const fn new(div: Divisor) -> Recalled {
+        Recalled { div, last: (0, 0) }
+    }
+
+    /// [`Divisor::div_signed`], from memory when `n` is the last one's.
+    #[inline]
+    pub fn div_signed(&mut self, n: i64) -> i64 {
+        if n != self.last.0 {
+            self.last = (n, self.div.div_signed(n));
+        }
+        self.last.1
+    }
+}
+
 /// `n / d` for a divisor below 2³², exactly, with the core's 32-bit
 /// divide (UDIV) only: the high word by UDIV, then the low word's 64-by-32
 /// step as two 16-bit digits (Hacker's Delight, `divlu`). A 64-bit `/` is
@@ -274,6 +299,28 @@ mod tests {
         #[test]
         fn signed_div_equals_the_division_operator(n in any::<i64>(), d in 1u64..(1 << 62)) {
             prop_assert_eq!(Divisor::new(d).div_signed(n), n / d as i64);
+        }
+    }
+
+    #[test]
+    fn a_recalled_quotient_is_the_division_of_the_same_number() {
+        for d in [1u64, 3, 1000, 64_000, (1 << 40) + 7] {
+            let mut r = Recalled::new(Divisor::new(d));
+            let div = Divisor::new(d);
+            for n in [
+                0i64,
+                5,
+                5,
+                -5,
+                -5,
+                i64::MIN,
+                i64::MAX,
+                i64::MAX,
+                12_345_678_901,
+                0,
+            ] {
+                assert_eq!(r.div_signed(n), div.div_signed(n), "{n} / {d}");
+            }
         }
     }
 }

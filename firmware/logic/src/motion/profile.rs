@@ -116,6 +116,13 @@ pub struct Profile {
     conv: [Option<(Limits, Internal)>; 2],
     /// The divisor of the deceleration used before `dec_div`.
     prev_div: Divisor,
+    /// Ticks still known to cruise: at the last full step the axis ran at
+    /// `vmax` toward a target so far beyond its braking distance that this
+    /// many more ticks at `vmax` keep it beyond (a lower bound). Each of
+    /// them is the full step's result without its arithmetic
+    /// ([`Profile::tick`]); anything that changes the mode, the limits or
+    /// the position sets it to 0.
+    coast: u32,
 }
 
 /// Steps/s → 2⁻³² steps/tick, rounded down (never above the limit).
@@ -201,6 +208,20 @@ fn quotient(num: i128, d: i64) -> i128 {
     }
 }
 
+/// Ticks at speed `v > 0` (2⁻³² steps/tick, so 2·`v` 2⁻³³ steps a tick)
+/// that keep a `slack` of distance beyond the braking point non-negative:
+/// `⌊slack / 2v⌋ + 1` for `slack ≥ 0`, rounded down to a shift (a lower
+/// bound, division-free; the cruise is checked again when it runs out).
+fn cruise_ticks(slack: i128, v: i64) -> u32 {
+    if slack < 0 || v <= 0 {
+        return 0;
+    }
+    // 2^b ≥ 2v.
+    let b = 65 - (v.unsigned_abs() - 1).leading_zeros();
+    let n = (slack as u128) >> b;
+    u32::try_from(n).unwrap_or(u32::MAX - 1) + 1
+}
+
 /// Position travelled (2⁻³³ steps) if the next velocity is `w` after `v`, then
 /// braking to zero: `v + w + 2·D(w)`. Increasing in `w`.
 fn reach(v: i64, w: i64, dec: i64) -> i128 {
@@ -224,6 +245,7 @@ impl Profile {
             memo: (0, 0),
             conv: [None, None],
             prev_div: Divisor::new(1),
+            coast: 0,
         };
         p.set_limits(limits);
         p
@@ -247,6 +269,7 @@ impl Profile {
             };
             self.prev_div = old;
             self.memo = (0, 0);
+            self.coast = 0;
         }
     }
 
@@ -272,6 +295,7 @@ impl Profile {
     /// tick. A lower deceleration never lets a reachable target be passed
     /// (module doc).
     pub fn set_limits(&mut self, limits: Limits) {
+        self.coast = 0;
         self.limits = limits;
         let (vmax, acc, dec) = self.internal(limits);
         self.vmax = vmax;
@@ -344,6 +368,7 @@ impl Profile {
 
     /// Move to `target` steps (position mode), from whatever the axis is doing.
     pub fn move_to(&mut self, target: i64) {
+        self.coast = 0;
         self.mode = Mode::Position(target);
     }
 
@@ -351,6 +376,7 @@ impl Profile {
     /// at every tick (so lowering max speed slows a running axis down).
     pub fn run_at(&mut self, steps_per_s: i32) {
         let v = speed_to_internal(steps_per_s.unsigned_abs(), self.tick_us);
+        self.coast = 0;
         self.mode = Mode::Velocity(if steps_per_s < 0 { -v } else { v });
     }
 
@@ -363,6 +389,7 @@ impl Profile {
     /// Decelerate with `dec` to a stop on the first whole step at or beyond
     /// the braking point.
     pub fn soft_stop(&mut self) {
+        self.coast = 0;
         if self.vel == 0 {
             self.mode = Mode::Position(self.position_toward(self.pos, 0));
             return;
@@ -385,6 +412,7 @@ impl Profile {
     /// Define the current position exactly, in 2⁻³³ steps (at rest, like
     /// [`Profile::set_position`]): for an axis held between two whole steps.
     pub fn set_position_fine(&mut self, fine: i128) {
+        self.coast = 0;
         self.vel = 0;
         self.pos = fine;
         self.mode = Mode::Hold;
@@ -395,6 +423,7 @@ impl Profile {
     /// asked to do: a target or speed given while it was stopping is kept,
     /// in the new coordinates.
     pub fn rebase_fine(&mut self, fine: i128) {
+        self.coast = 0;
         self.vel = 0;
         self.pos = fine;
         self.set_dec(self.dec_limit);
@@ -451,6 +480,19 @@ impl Profile {
 
     /// Advance one tick. Returns the new velocity (2⁻³² steps/tick).
     pub fn tick(&mut self) -> i64 {
+        if self.coast > 0 {
+            // Cruising far from the target: the full step keeps the speed
+            // (`coast`'s doc), and the position advances by it.
+            self.coast -= 1;
+            self.pos += 2 * i128::from(self.vel);
+            return self.vel;
+        }
+        self.tick_full()
+    }
+
+    /// [`Profile::tick`] worked out in full (what every tick computes
+    /// outside a cruise; the tests compare the two).
+    pub(crate) fn tick_full(&mut self) -> i64 {
         let next = match self.mode {
             Mode::Hold => 0,
             Mode::Velocity(target) => self.velocity_step(target),
@@ -522,7 +564,11 @@ impl Profile {
                 (v - self.dec).max(self.vmax)
             };
             let lower = (v - self.dec).max(0);
-            if self.reach(v, upper) <= r {
+            let k = self.reach(v, upper);
+            if k <= r {
+                if upper == v && v == self.vmax {
+                    self.coast = cruise_ticks(r - 2 * i128::from(v) - k, v);
+                }
                 upper
             } else if self.reach(v, lower) > r {
                 // Inside the braking distance: brake as hard as allowed.
@@ -761,5 +807,97 @@ mod tests {
             p.tick();
         }
         assert_eq!(p.velocity(), 1000);
+    }
+
+    /// What a sequence of commands does to a profile.
+    #[derive(Clone, Debug)]
+    enum Op {
+        Ticks(u16),
+        MoveTo(i64),
+        RunAt(i32),
+        Limits(u32, u32, u32),
+        SoftStop,
+        StopNow,
+        Rebase(i64),
+    }
+
+    fn op() -> impl proptest::strategy::Strategy<Value = Op> {
+        use proptest::prelude::*;
+        prop_oneof![
+            4 => (1u16..3000).prop_map(Op::Ticks),
+            2 => prop_oneof![-200i64..200, -3_000_000i64..3_000_000, proptest::num::i64::ANY.prop_map(|t| t >> 20)]
+                .prop_map(Op::MoveTo),
+            1 => (-400_000i32..400_000).prop_map(Op::RunAt),
+            1 => (1u32..3_000_000, 1u32..10_000_000, 1u32..10_000_000)
+                .prop_map(|(v, a, d)| Op::Limits(v, a, d)),
+            1 => Just(Op::SoftStop),
+            1 => Just(Op::StopNow),
+            1 => (-1_000i64..1_000).prop_map(Op::Rebase),
+        ]
+    }
+
+    proptest::proptest! {
+        /// The cruise's shortcut ([`Profile::tick`] while `coast` counts)
+        /// gives, tick by tick, what the full step gives: the same
+        /// position, speed and mode, whatever came before.
+        #[test]
+        fn a_cruise_tick_is_the_full_step(
+            tick_us in proptest::sample::select(vec![100u32, 200, 250, 500, 1000, 2000]),
+            (v, a, d) in (1u32..3_000_000, 1u32..10_000_000, 1u32..10_000_000),
+            ops in proptest::collection::vec(op(), 1..24),
+        ) {
+            let mut fast = Profile::new(tick_us, lim(v, a, d));
+            let mut full = fast.clone();
+            let mut coasted = 0u64;
+            for op in ops {
+                match op {
+                    Op::Ticks(n) => {
+                        for _ in 0..n {
+                            coasted += u64::from(fast.coast > 0);
+                            proptest::prop_assert_eq!(fast.tick(), full.tick_full());
+                            proptest::prop_assert_eq!(fast.position_fine(), full.position_fine());
+                            proptest::prop_assert_eq!(fast.mode(), full.mode());
+                        }
+                    }
+                    Op::MoveTo(t) => { fast.move_to(t); full.move_to(t); }
+                    Op::RunAt(s) => { fast.run_at(s); full.run_at(s); }
+                    Op::Limits(v, a, d) => {
+                        fast.set_limits(lim(v, a, d));
+                        full.set_limits(lim(v, a, d));
+                    }
+                    Op::SoftStop => { fast.soft_stop(); full.soft_stop(); }
+                    Op::StopNow => { fast.stop_now(); full.stop_now(); }
+                    Op::Rebase(x) => {
+                        fast.rebase_fine(i128::from(x) << POS_FRAC);
+                        full.rebase_fine(i128::from(x) << POS_FRAC);
+                    }
+                }
+                proptest::prop_assert_eq!(fast.internal_limits(), full.internal_limits());
+            }
+            // (Not every sequence cruises; the unit test below makes sure
+            // some do.)
+            let _ = coasted;
+        }
+    }
+
+    #[test]
+    fn a_long_move_cruises_on_the_shortcut_and_lands_as_the_full_step_does() {
+        let mut fast = Profile::new(MS, lim(20_000, 100_000, 50_000));
+        let mut full = fast.clone();
+        fast.move_to(5_000_000);
+        full.move_to(5_000_000);
+        let (mut coasted, mut ticks) = (0u32, 0u32);
+        while !full.is_settled() {
+            coasted += u32::from(fast.coast > 0);
+            assert_eq!(fast.tick(), full.tick_full());
+            assert_eq!(fast.position_fine(), full.position_fine());
+            ticks += 1;
+        }
+        assert!(fast.is_settled());
+        assert_eq!(fast.position_round(), 5_000_000);
+        // 250 s of travel, nearly all of it at 20 000 steps/s: all but
+        // the ramps and a tick per halving of the distance left coast.
+        assert!(ticks > 250_000, "{ticks}");
+        assert!(coasted > ticks - 1_000, "{coasted} of {ticks}");
     }
 }

@@ -122,6 +122,12 @@ pub const fn correction_divisor(tick_us: u32, step: StepSel, ticks: i64) -> Divi
 /// [`correction_speed_reg`] with its divisor precomputed: the same value
 /// (for `tick_us · ticks > 0`).
 pub const fn correction_reg_with(e: i64, div: Divisor) -> i64 {
+    div.div_signed(correction_numerator(e))
+}
+
+/// The numerator [`correction_reg_with`] divides (the error clamped to
+/// ±2³⁰ microsteps, times 2²⁶), for a divisor that remembers it.
+pub const fn correction_numerator(e: i64) -> i64 {
     let e = if e > 1 << 30 {
         1 << 30
     } else if e < -(1 << 30) {
@@ -129,7 +135,7 @@ pub const fn correction_reg_with(e: i64, div: Divisor) -> i64 {
     } else {
         e
     };
-    div.div_signed(e << 26)
+    e << 26
 }
 
 /// A following error of `e` physical microsteps corrected over `ticks` ticks,

@@ -69,7 +69,7 @@
 // uses checked or saturating operations where its inputs are unbounded.
 #![allow(clippy::arithmetic_side_effects)]
 
-use super::divisor::Divisor;
+use super::divisor::Recalled;
 use super::homing::{Homing, HomingError, HomingParams, HomingState, Seen, Step};
 use super::profile::{Limits, Mode, Profile};
 use super::units::{self, LIMIT_CAPS};
@@ -359,8 +359,8 @@ struct StopState {
 pub struct Axis {
     cfg: AxisConfig,
     /// Divisors of the per-tick speed conversions (follow `cfg`).
-    speed_div: Divisor,
-    corr_div: Divisor,
+    speed_div: Recalled,
+    corr_div: Recalled,
     /// [`units::cap_to_stop`] for the profile's deceleration.
     stop_cap: units::StopCap,
     /// The inputs `stop_cap` and the ramp capabilities were worked out for.
@@ -445,12 +445,12 @@ impl Axis {
         image.set(Register::MinSpeed, 0);
         let mut axis = Axis {
             cfg,
-            speed_div: units::speed_divisor(cfg.tick_us, cfg.logical_shift),
-            corr_div: units::correction_divisor(
+            speed_div: Recalled::new(units::speed_divisor(cfg.tick_us, cfg.logical_shift)),
+            corr_div: Recalled::new(units::correction_divisor(
                 cfg.tick_us,
                 cfg.step,
                 correction_ticks(cfg.tick_us),
-            ),
+            )),
             stop_cap: units::StopCap::new(limits.dec, cfg.logical_shift, cfg.step),
             memo: LimitMemo {
                 ramps: None,

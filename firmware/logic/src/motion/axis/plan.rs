@@ -577,8 +577,12 @@ impl Axis {
             }
             return;
         }
-        let ff = units::speed_reg_with(self.profile.velocity_internal(), self.speed_div);
-        let corr = units::correction_reg_with(self.rb.error, self.corr_div);
+        // (speed_reg_with and correction_reg_with, remembered: while
+        // cruising both are the last tick's.)
+        let ff = self.speed_div.div_signed(self.profile.velocity_internal());
+        let corr = self
+            .corr_div
+            .div_signed(units::correction_numerator(self.rb.error));
         let spd = self.cap_to_stop(ff, ff + corr);
         let dir = if spd < 0 || (spd == 0 && ff < 0) {
             Direction::Reverse
