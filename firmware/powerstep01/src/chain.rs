@@ -35,7 +35,7 @@
 
 use heapless::Vec;
 
-use super::commands::Command;
+use super::commands::{opcode, Command, Direction, SPEED_MAX};
 use super::registers::Register;
 use super::status::Status;
 
@@ -374,6 +374,26 @@ struct ReadSlot {
     command: Command,
 }
 
+/// The read of a streaming tick's batch ([`Plan::stream_put`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum StreamRead {
+    /// GetStatus.
+    Status,
+    /// GetParam of a register (every register is 1 to 3 bytes).
+    Param(Register),
+}
+
+impl StreamRead {
+    /// The read as a command.
+    pub const fn command(self) -> Command {
+        match self {
+            StreamRead::Status => Command::GetStatus,
+            StreamRead::Param(r) => Command::GetParam(r),
+        }
+    }
+}
+
 /// A scheduled batch: the bytes of every window and where replies come out.
 ///
 /// A plan can be refilled in place ([`Plan::schedule`]) so the control tick
@@ -560,6 +580,75 @@ impl Plan {
         true
     }
 
+    /// The streaming tick's plan written one device at a time, without a
+    /// [`Batch`]: this for a chain of `n` devices (1 to [`MAX_DEVICES`];
+    /// false, and the plan untouched, for any other `n`), then
+    /// [`Plan::stream_put`] for every device. The result is the plan
+    /// [`Plan::schedule`] makes of a batch of a read and a Run (or only the
+    /// read) per device, as long as one device has a Run (a test compares
+    /// the two).
+    pub fn stream_begin(&mut self, n: usize) -> bool {
+        if n == 0 || n > MAX_DEVICES {
+            return false;
+        }
+        self.n = n as u8;
+        self.windows = STREAM_WINDOWS as u8;
+        self.sync_window = (STREAM_WINDOWS as u8).saturating_sub(1);
+        self.reads.clear();
+        for row in self.tx.iter_mut().take(STREAM_WINDOWS) {
+            *row = [0; MAX_DEVICES];
+        }
+        true
+    }
+
+    /// Device `device`'s read (window 0, its reply from window 1) and Run
+    /// (windows 1 to 4; none: NOPs, the device only reads) in a plan begun
+    /// by [`Plan::stream_begin`].
+    // Indices: device < n ≤ MAX_DEVICES (checked), rows 0..5 of MAX_WINDOWS.
+    #[allow(clippy::arithmetic_side_effects)]
+    pub fn stream_put(
+        &mut self,
+        device: usize,
+        read: StreamRead,
+        run: Option<(Direction, u32)>,
+    ) -> Result<(), ScheduleError> {
+        let n = usize::from(self.n);
+        if device >= n {
+            return Err(ScheduleError::NoSuchDevice(device.min(255) as u8));
+        }
+        let col = n - 1 - device;
+        let command = read.command();
+        let [r0, r1, r2, r3, r4, ..] = &mut self.tx;
+        if let Some(cell) = r0.get_mut(col) {
+            *cell = match read {
+                StreamRead::Status => opcode::GET_STATUS,
+                StreamRead::Param(r) => opcode::GET_PARAM | r.address(),
+            };
+        }
+        if let Some((dir, speed)) = run {
+            let s = speed.min(SPEED_MAX).to_be_bytes();
+            for (row, b) in [
+                (r1, opcode::RUN | dir.bit()),
+                (r2, s[1]),
+                (r3, s[2]),
+                (r4, s[3]),
+            ] {
+                if let Some(cell) = row.get_mut(col) {
+                    *cell = b;
+                }
+            }
+        }
+        self.reads
+            .push(ReadSlot {
+                device: device as u8,
+                index: 0,
+                first_window: 1,
+                len: command.response_len(),
+                command,
+            })
+            .map_err(|_| ScheduleError::TooManyCommands)
+    }
+
     /// Chain length this plan was made for.
     pub fn devices(&self) -> usize {
         usize::from(self.n)
@@ -611,15 +700,21 @@ impl Plan {
             let Some(slot) = n.checked_sub(1 + usize::from(r.device)) else {
                 continue;
             };
-            let mut value = 0u32;
-            for k in 0..usize::from(r.len) {
-                let byte = rx
-                    .get(usize::from(r.first_window).saturating_add(k))
+            // MSB first; every response is 1 to 3 bytes (windows past the
+            // last read as 0).
+            let first = usize::from(r.first_window);
+            let rows = rx.get(first..).unwrap_or(&[]);
+            let at = |k: usize| {
+                rows.get(k)
                     .and_then(|w| w.get(slot))
-                    .copied()
-                    .unwrap_or(0);
-                value = (value << 8) | u32::from(byte);
-            }
+                    .map_or(0, |b| u32::from(*b))
+            };
+            let value = match r.len {
+                0 => 0,
+                1 => at(0),
+                2 => (at(0) << 8) | at(1),
+                _ => (at(0) << 16) | (at(1) << 8) | at(2),
+            };
             let reply = match r.command {
                 Command::GetStatus => Reply::Status(Status(value as u16)),
                 Command::GetParam(reg) => Reply::Param(reg, value & reg.mask()),
@@ -836,16 +931,19 @@ impl<B: ChainBus> Chain<B> {
         rx: Result<&Frames, B::Error>,
         replies: &mut Replies,
     ) -> Result<(), ChainError<B::Error>> {
-        match rx {
-            Ok(rx) => {
-                plan.decode_into(rx, replies);
-                Ok(())
-            }
-            Err(e) => {
-                self.out_of_step = true;
-                Err(ChainError::Bus(e))
-            }
-        }
+        self.ended(rx).map(|rx| plan.decode_into(rx, replies))
+    }
+
+    /// [`Chain::end`] without the decoding: what came back, or the bus
+    /// error (the chain is then out of step).
+    pub fn ended<'a>(
+        &mut self,
+        rx: Result<&'a Frames, B::Error>,
+    ) -> Result<&'a Frames, ChainError<B::Error>> {
+        rx.map_err(|e| {
+            self.out_of_step = true;
+            ChainError::Bus(e)
+        })
     }
 
     /// Schedule and run a batch.
@@ -1020,6 +1118,8 @@ mod tests {
         for n in 1..=MAX_DEVICES {
             for k in 0..reads.len() {
                 let mut b = Batch::new(n);
+                // Device d runs unless bit d of `rests` (some device runs).
+                let rests = (k as u32 * 0x2D) & ((1 << n) - 1) & !1;
                 for d in 0..n {
                     b.push(d, reads[(k + d) % reads.len()]).unwrap();
                     let dir = if d % 2 == 0 {
@@ -1027,14 +1127,34 @@ mod tests {
                     } else {
                         Direction::Reverse
                     };
-                    b.push(d, Command::Run(dir, 0x12_3456 + d as u32)).unwrap();
+                    if rests & (1 << d) == 0 {
+                        b.push(d, Command::Run(dir, 0x12_3456 + d as u32)).unwrap();
+                    }
                 }
                 let fast = Plan::new(&b).unwrap();
                 let mut slow = Plan::default();
                 slow.schedule_general(&b).unwrap();
                 assert_eq!(fast, slow, "n = {n}, k = {k}");
                 let mut probe = Plan::default();
-                assert!(probe.schedule_streaming(&b));
+                assert_eq!(probe.schedule_streaming(&b), rests == 0);
+                // Written a device at a time, without the batch: the same.
+                let mut put = Plan::default();
+                put.schedule(&Batch::all(3, Command::HardStop)).unwrap();
+                assert!(put.stream_begin(n));
+                for d in 0..n {
+                    let read = match reads[(k + d) % reads.len()] {
+                        Command::GetParam(r) => StreamRead::Param(r),
+                        _ => StreamRead::Status,
+                    };
+                    let dir = if d % 2 == 0 {
+                        Direction::Forward
+                    } else {
+                        Direction::Reverse
+                    };
+                    let run = (rests & (1 << d) == 0).then_some((dir, 0x12_3456 + d as u32));
+                    put.stream_put(d, read, run).unwrap();
+                }
+                assert_eq!(put, slow, "n = {n}, k = {k}");
             }
         }
         // Anything else takes the general layout.
@@ -1043,6 +1163,19 @@ mod tests {
         b.push(0, Command::Run(Direction::Forward, 5)).unwrap();
         b.push(1, Command::GetStatus).unwrap();
         assert!(!Plan::default().schedule_streaming(&b));
+    }
+
+    #[test]
+    fn a_streaming_plan_refuses_a_device_past_its_chain() {
+        let mut plan = Plan::default();
+        assert!(!plan.stream_begin(0));
+        assert!(!plan.stream_begin(MAX_DEVICES + 1));
+        assert!(plan.stream_begin(2));
+        assert_eq!(
+            plan.stream_put(2, StreamRead::Status, Some((Direction::Forward, 1))),
+            Err(ScheduleError::NoSuchDevice(2))
+        );
+        assert_eq!(plan.windows(), STREAM_WINDOWS);
     }
 
     #[test]

@@ -8,7 +8,7 @@
 //! simulated SPI transfer and chip physics are outside them.
 
 use bridge_logic::motion::{Axis, AxisConfig, AxisGroup, Limits, Profile};
-use bridge_logic::powerstep::chain::{Chain, Plan, Replies};
+use bridge_logic::powerstep::chain::{Chain, Frames, Plan, MAX_DEVICES, MAX_WINDOWS};
 use bridge_logic::powerstep::{DriveMode, StepSel};
 use host_tests::clock::{SimClock, SimControl};
 use stepbridge_sim::SimChain;
@@ -25,9 +25,10 @@ fn bench_prepare(g: &mut AxisGroup) -> Option<&Plan> {
     g.prepare().ok()
 }
 
+/// Decode what came back and absorb it (the firmware's `tick_end`).
 #[inline(never)]
-fn bench_finish(g: &mut AxisGroup, r: &Replies) {
-    g.finish(r)
+fn bench_finish(g: &mut AxisGroup, chain: &mut Chain<SimChain>, rx: &Frames) {
+    let _ = g.tick_end(chain, Ok(rx));
 }
 
 /// The 8-axis group on its chain; each control tick's own work is in the
@@ -35,7 +36,6 @@ fn bench_finish(g: &mut AxisGroup, r: &Replies) {
 struct Bench {
     group: AxisGroup,
     chain: Chain<SimChain>,
-    replies: Replies,
     /// Measured ticks go through the `bench_*` functions; set-up ticks not.
     measure: bool,
     /// Windows per tick → ticks.
@@ -52,10 +52,12 @@ impl SimControl for Bench {
             return;
         };
         *self.histogram.entry(plan.windows()).or_default() += 1;
-        if self.chain.run_into(plan, &mut self.replies).is_err() {
-            self.replies = Replies::default();
+        let mut rx: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS];
+        let plan = self.group.plan();
+        if self.chain.begin(plan).is_err() || self.chain.clock(plan, &mut rx).is_err() {
+            return;
         }
-        bench_finish(&mut self.group, &self.replies);
+        bench_finish(&mut self.group, &mut self.chain, &rx);
     }
     fn chips(&mut self) -> &mut SimChain {
         self.chain.bus_mut()
@@ -103,7 +105,6 @@ fn main() {
             let mut bench = Bench {
                 group,
                 chain,
-                replies: Replies::default(),
                 measure: false,
                 histogram: Default::default(),
             };

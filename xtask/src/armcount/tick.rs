@@ -34,8 +34,8 @@ const RUN: Run = Run {
 /// Counters 1–5.
 const NAMES: [&str; 5] = [
     "prepare (plan + profile generator + schedule/encode)",
-    "run_into minus bus windows (window loop + decode)",
-    "finish (absorb replies)",
+    "begin + clock minus bus windows (window loop)",
+    "tick_end (decode + absorb replies)",
     "profile mode: one Profile::tick",
     "calibration: empty marker pair",
 ];
@@ -84,21 +84,21 @@ fn art_misses(tick: &[&Stats; 3]) -> ((f64, f64), (f64, f64)) {
 }
 
 /// The SUMMARY lines: the whole cruise tick (callgrind's scope, then with
-/// run_into's CPU part), its cycles at each model and ART misses, and the
+/// the window loop), its cycles at each model and ART misses, and the
 /// profile generator.
 fn summary(tick: &[&Stats; 3], profile: &Stats) {
     let [prepare, run, finish] = *tick;
     let pf = prepare.net + finish.net;
     let insn: f64 = tick.iter().map(|t| t.net).sum();
     println!(
-        "SUMMARY whole 8-axis tick: prepare+finish (callgrind's scope) {pf:.0} insns ({:.0}/axis); + run_into CPU part {insn:.0} ({:.0}/axis)",
+        "SUMMARY whole 8-axis tick: prepare+tick_end (callgrind's scope) {pf:.0} insns ({:.0}/axis); + the window loop {insn:.0} ({:.0}/axis)",
         pf / 8.0,
         insn / 8.0
     );
     for (i, (name, _)) in cycles::MODELS.iter().enumerate() {
         let c1 = prepare.cycles[i] + finish.cycles[i];
         println!(
-            "  cycles ({name}): prepare+finish {c1:.0}; with run_into {:.0}",
+            "  cycles ({name}): prepare+tick_end {c1:.0}; with the window loop {:.0}",
             c1 + run.cycles[i]
         );
     }

@@ -3,7 +3,7 @@
 
 use heapless::Vec;
 
-use super::axis::Axis;
+use super::axis::{Axis, AxisState};
 use crate::powerstep::chain::{
     Batch, Chain, ChainBus, ChainError, Frames, Plan, Replies, ScheduleError, MAX_DEVICES,
     MAX_WINDOWS,
@@ -21,6 +21,18 @@ pub struct AxisGroup {
     /// `plans.1` is the one being made.
     second: bool,
     replies: Replies,
+    /// Ticks in which every axis cruises or rests plan without the batch
+    /// ([`AxisGroup::prepare`], [`Axis::plain`]).
+    shortcut: bool,
+    /// Ticks planned that way (wrapping).
+    cruised: u32,
+    /// Which plan (`plans.0`, `plans.1`) was made that way: its replies
+    /// are the 3 bytes from window 1 of every device's column.
+    plain: [bool; 2],
+    /// The last replies decoded were a plain plan's: `raw` holds them
+    /// (device d's 3 bytes, MSB first), not `replies`.
+    raw_decoded: bool,
+    raw: [u32; MAX_DEVICES],
 }
 
 impl Default for AxisGroup {
@@ -52,6 +64,11 @@ impl AxisGroup {
             plans: (Plan::default(), Plan::default()),
             second: false,
             replies: Replies::default(),
+            shortcut: true,
+            cruised: 0,
+            plain: [false; 2],
+            raw_decoded: false,
+            raw: [0; MAX_DEVICES],
         }
     }
 
@@ -92,6 +109,18 @@ impl AxisGroup {
         self.batch.set_window_budget(windows);
     }
 
+    /// Whether a tick in which every axis cruises or rests ([`Axis::plain`])
+    /// is planned without the batch (on by default; the tests turn it off
+    /// to compare the two).
+    pub fn set_cruise_shortcut(&mut self, on: bool) {
+        self.shortcut = on;
+    }
+
+    /// Ticks planned on the cruise shortcut so far (wrapping).
+    pub fn cruised_ticks(&self) -> u32 {
+        self.cruised
+    }
+
     /// The plan being made (`making`) or the other one.
     fn slot(&self, making: bool) -> &Plan {
         pick(&self.plans, self.second == making)
@@ -99,14 +128,34 @@ impl AxisGroup {
 
     /// First half of a tick: every axis plans its commands; one plan for the chain.
     pub fn prepare(&mut self) -> Result<&Plan, ScheduleError> {
+        let [a, b] = [&mut self.plans.0, &mut self.plans.1];
+        let plan = if self.second { b } else { a };
+        let plain_slot = usize::from(self.second);
+        // The common tick, every axis cruising or resting: each writes its
+        // read and its Run straight into the plan (the same plan as below).
+        let n = self.axes.len();
+        // (At least one Run: a batch of reads alone is shorter.)
+        let mut runs = false;
+        let plain = self.axes.iter().all(|a| {
+            runs |= matches!(a.state(), AxisState::Streaming);
+            a.plain()
+        });
+        if self.shortcut && plain && runs && plan.stream_begin(n) {
+            for (d, axis) in self.axes.iter_mut().enumerate() {
+                let (read, run) = axis.plan_plain();
+                plan.stream_put(d, read, run)?;
+            }
+            self.cruised = self.cruised.wrapping_add(1);
+            set(&mut self.plain, plain_slot, true);
+            return Ok(plan);
+        }
+        set(&mut self.plain, plain_slot, false);
         let batch = &mut self.batch;
-        batch.reset(self.axes.len());
+        batch.reset(n);
         for (d, axis) in self.axes.iter_mut().enumerate() {
             axis.plan(|cmd| batch.push(d, cmd).is_ok());
         }
-        let [a, b] = [&mut self.plans.0, &mut self.plans.1];
-        let plan = if self.second { b } else { a };
-        plan.schedule(&self.batch)?;
+        plan.schedule(batch)?;
         Ok(plan)
     }
 
@@ -130,8 +179,34 @@ impl AxisGroup {
     ) -> Result<(), ChainError<B::Error>> {
         // The plan being made is the one before the launch until the next
         // prepare.
-        let plan = pick(&self.plans, self.second == just_launched);
-        chain.end(plan, rx, &mut self.replies)
+        self.decode(chain, rx, self.second == just_launched)
+    }
+
+    /// What came back for plan `second` (`plans.1` if true), decoded: a
+    /// plain plan's replies into `raw`, any other's into `replies`.
+    fn decode<B: ChainBus>(
+        &mut self,
+        chain: &mut Chain<B>,
+        rx: Result<&Frames, B::Error>,
+        second: bool,
+    ) -> Result<(), ChainError<B::Error>> {
+        let rx = chain.ended(rx)?;
+        let plan = pick(&self.plans, second);
+        self.raw_decoded = self.plain.get(usize::from(second)) == Some(&true);
+        if !self.raw_decoded {
+            plan.decode_into(rx, &mut self.replies);
+            return Ok(());
+        }
+        // Device d is column n − 1 − d; its read's reply is in windows 1
+        // to 3 (a 2-byte STATUS in 1 and 2).
+        let [_, w1, w2, w3, ..] = rx;
+        let n = plan.devices();
+        for (d, raw) in self.raw.iter_mut().enumerate().take(n) {
+            let col = n.saturating_sub(d).saturating_sub(1);
+            let byte = |w: &[u8; MAX_DEVICES]| w.get(col).map_or(0, |b| u32::from(*b));
+            *raw = (byte(w1) << 16) | (byte(w2) << 8) | byte(w3);
+        }
+        Ok(())
     }
 
     /// Second half of a tick: every axis takes its replies.
@@ -193,7 +268,7 @@ impl AxisGroup {
         chain: &mut Chain<B>,
         rx: Result<&Frames, B::Error>,
     ) -> Result<(), ChainError<B::Error>> {
-        let result = chain.end(pick(&self.plans, self.second), rx, &mut self.replies);
+        let result = self.decode(chain, rx, self.second);
         self.absorb_decoded(result.is_ok());
         result
     }
@@ -202,6 +277,12 @@ impl AxisGroup {
     /// [`AxisGroup::end_previous`]) if `ok`, or sets its chip up again (the
     /// batch failed).
     pub fn absorb_decoded(&mut self, ok: bool) {
+        if ok && self.raw_decoded {
+            for (axis, raw) in self.axes.iter_mut().zip(self.raw) {
+                axis.absorb_plain(raw);
+            }
+            return;
+        }
         for (d, axis) in self.axes.iter_mut().enumerate() {
             if ok {
                 axis.absorb(&self.replies, d);
@@ -219,5 +300,12 @@ fn pick(plans: &(Plan, Plan), second: bool) -> &Plan {
         &plans.1
     } else {
         &plans.0
+    }
+}
+
+/// `flags[k] = on` (k is 0 or 1).
+fn set(flags: &mut [bool; 2], k: usize, on: bool) {
+    if let Some(f) = flags.get_mut(k) {
+        *f = on;
     }
 }

@@ -478,7 +478,14 @@ impl Profile {
         step.clamp(i128::from(i64::MIN), i128::from(i64::MAX)) as i64
     }
 
+    /// The next [`Profile::tick`] is a cruise's: it keeps the speed (at
+    /// most the max speed, not 0), so the profile does not settle.
+    pub fn coasting(&self) -> bool {
+        self.coast > 0 && self.vel != 0 && self.vel.unsigned_abs() <= self.vmax.unsigned_abs()
+    }
+
     /// Advance one tick. Returns the new velocity (2⁻³² steps/tick).
+    #[inline]
     pub fn tick(&mut self) -> i64 {
         if self.coast > 0 {
             // Cruising far from the target: the full step keeps the speed
@@ -492,6 +499,7 @@ impl Profile {
 
     /// [`Profile::tick`] worked out in full (what every tick computes
     /// outside a cruise; the tests compare the two).
+    #[inline(never)]
     pub(crate) fn tick_full(&mut self) -> i64 {
         let next = match self.mode {
             Mode::Hold => 0,

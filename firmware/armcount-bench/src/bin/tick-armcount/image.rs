@@ -1,6 +1,8 @@
 use armcount_bench::marker;
 use bridge_logic::motion::{Axis, AxisConfig, AxisGroup, Limits, Profile};
-use bridge_logic::powerstep::chain::{Chain, ChainBus, Replies};
+use bridge_logic::powerstep::chain::{
+    Chain, ChainBus, ChainError, Frames, MAX_DEVICES, MAX_WINDOWS,
+};
 use bridge_logic::powerstep::{DriveMode, StepSel};
 use core::hint::black_box;
 use cortex_m_rt::entry;
@@ -65,27 +67,30 @@ struct Marks {
     finish: extern "C" fn(),
 }
 
-/// One control tick through the blocking chain, each region between its
-/// marker and `armcost_mark_off`; then the simulated chips' time.
-fn tick(
-    group: &mut AxisGroup,
-    chain: &mut Chain<Bus>,
-    replies: &mut Replies,
-    m: &Marks,
-    tick_ns: u64,
-) {
+/// One control tick through the blocking chain, as the firmware's tick in
+/// a row runs it, each region between its marker and `armcost_mark_off`:
+/// the plan, the windows (begin and clock), the decoding and absorbing of
+/// what came back; then the simulated chips' time.
+fn tick(group: &mut AxisGroup, chain: &mut Chain<Bus>, m: &Marks, tick_ns: u64) {
     (m.prepare)();
-    let plan = group.prepare().ok();
+    let planned = group.prepare().is_ok();
     armcost_mark_off();
-    if let Some(plan) = plan {
+    if planned {
         (m.run)();
-        let r = chain.run_into(black_box(plan), replies);
+        let mut rx: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS];
+        let plan = group.plan();
+        let r = chain
+            .begin(black_box(plan))
+            .map(|()| chain.clock(plan, &mut rx));
         armcost_mark_off();
-        if r.is_err() {
-            *replies = Replies::default();
-        }
         (m.finish)();
-        group.finish(black_box(replies));
+        let rx = match r {
+            Ok(Ok(())) => Ok(black_box(&rx)),
+            Ok(Err(e)) | Err(ChainError::Bus(e)) => Err(e),
+            // Not on this chain (it is detected and fits): nothing to absorb.
+            Err(_) => return,
+        };
+        let _ = group.tick_end(chain, rx);
         armcost_mark_off();
     }
     chain.bus_mut().sim.advance(tick_ns);
@@ -130,7 +135,7 @@ fn axis_group() -> AxisGroup {
 
 /// The cruise workload (counters 1–3, and 5 after each tick): every axis
 /// streaming its long move, every tick the same.
-fn cruise(group: &mut AxisGroup, chain: &mut Chain<Bus>, replies: &mut Replies, tick_ns: u64) {
+fn cruise(group: &mut AxisGroup, chain: &mut Chain<Bus>, tick_ns: u64) {
     chain.bus_mut().counting = true;
     let marks = Marks {
         prepare: armcost_mark_prepare,
@@ -138,7 +143,7 @@ fn cruise(group: &mut AxisGroup, chain: &mut Chain<Bus>, replies: &mut Replies, 
         finish: armcost_mark_finish,
     };
     for _ in 0..N {
-        tick(group, chain, replies, &marks, tick_ns);
+        tick(group, chain, &marks, tick_ns);
         armcost_mark_cal();
         armcost_mark_off();
         armcost_epoch();
@@ -166,7 +171,7 @@ fn stop_all(group: &mut AxisGroup, chain: &mut Chain<Bus>, tick_ns: u64) {
 /// (40 000 logical steps, a triangle profile: ramps, braking, stop and
 /// landing, the next move's start), each starting when the last one has
 /// landed.
-fn moves(group: &mut AxisGroup, chain: &mut Chain<Bus>, replies: &mut Replies, tick_ns: u64) {
+fn moves(group: &mut AxisGroup, chain: &mut Chain<Bus>, tick_ns: u64) {
     let bus = chain.bus_mut();
     bus.resume = armcost_mark_run2;
     bus.counting = true;
@@ -186,7 +191,7 @@ fn moves(group: &mut AxisGroup, chain: &mut Chain<Bus>, replies: &mut Replies, t
                 }
             }
         }
-        tick(group, chain, replies, &marks, tick_ns);
+        tick(group, chain, &marks, tick_ns);
         armcost_mark_off();
         armcost_epoch();
     }
@@ -211,7 +216,6 @@ fn main() -> ! {
     let mut chain = detected_chain();
     let mut group = axis_group();
     let tick_ns = u64::from(TICK_US) * 1000;
-    let mut replies = Replies::default();
     // Configure the chips and start a long move on every axis (not measured).
     for _ in 0..10 {
         let _ = group.tick(&mut chain);
@@ -222,9 +226,9 @@ fn main() -> ! {
             a.move_to(if k % 2 == 0 { 1 << 30 } else { -(1 << 30) });
         }
     }
-    cruise(&mut group, &mut chain, &mut replies, tick_ns);
+    cruise(&mut group, &mut chain, tick_ns);
     stop_all(&mut group, &mut chain, tick_ns);
-    moves(&mut group, &mut chain, &mut replies, tick_ns);
+    moves(&mut group, &mut chain, tick_ns);
     profile_ticks();
     armcost_mark_dump();
     semihosting::process::exit(0)

@@ -6,9 +6,10 @@
 //! simulated powerSTEP01s.
 //!
 //! Counters: 1 `AxisGroup::prepare` (plan: profile generator, setpoints,
-//! schedule and encode), 2 `Chain::run_into` without the simulated bus
-//! (window loop, decode), 3 `AxisGroup::finish` (absorb the replies), 4 one
-//! `Profile::tick` of a long move, 5 an empty marker pair (calibration).
+//! schedule and encode), 2 `Chain::begin` and `Chain::clock` without the
+//! simulated bus (the window loop), 3 `AxisGroup::tick_end` (decode and
+//! absorb the replies), 4 one `Profile::tick` of a long move, 5 an empty
+//! marker pair (calibration).
 //! The simulated chips' own work (the bus window and the chip physics) is
 //! outside every counter.
 //!

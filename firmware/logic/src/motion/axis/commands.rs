@@ -59,7 +59,7 @@ impl Axis {
     /// the position where the chip stopped. Motion commands are ignored until
     /// [`Axis::wake`].
     pub fn sleep(&mut self) {
-        if self.state == AxisState::Homing {
+        if matches!(self.state, AxisState::Homing) {
             self.end_homing(HomingError::Aborted);
         }
         self.asleep = true;
@@ -93,7 +93,7 @@ impl Axis {
     /// Start homing (`super::homing`). The switch's NO/NC wiring is in
     /// `params`. Refused unless the axis rests, is configured and awake.
     pub fn start_homing(&mut self, params: HomingParams) -> Result<(), HomingError> {
-        if self.state != AxisState::Idle || !self.profile.is_settled() || self.asleep {
+        if !matches!(self.state, AxisState::Idle) || !self.profile.is_settled() || self.asleep {
             return Err(HomingError::NotReady);
         }
         let closed = self.rb.status.switch_closed();
@@ -123,7 +123,7 @@ impl Axis {
     }
 
     pub fn is_homing(&self) -> bool {
-        self.state == AxisState::Homing
+        matches!(self.state, AxisState::Homing)
     }
 
     /// End a running homing sequence with `e` (the caller stops the chip).
@@ -200,12 +200,12 @@ impl Axis {
     /// Decelerate to a stop with the profile's deceleration. An axis at rest,
     /// or already stopping at once, has nothing to do.
     pub fn soft_stop(&mut self) {
-        if self.state == AxisState::Homing {
+        if matches!(self.state, AxisState::Homing) {
             self.end_homing(HomingError::Aborted);
             self.stop_then(AfterStop::Hold, Command::SoftStop);
             return;
         }
-        if self.state == AxisState::Stopping && self.stop.after == AfterStop::Hold {
+        if matches!(self.state, AxisState::Stopping) && self.stop.after == AfterStop::Hold {
             self.profile.stop_now();
         } else if !self.profile.is_settled() {
             self.profile.soft_stop();
@@ -215,7 +215,7 @@ impl Axis {
     /// (no landing move: after an end switch that could go back into it).
     /// An axis that is asleep stays in HiZ.
     pub fn stop_now(&mut self) {
-        if self.state == AxisState::Homing {
+        if matches!(self.state, AxisState::Homing) {
             self.end_homing(HomingError::Aborted);
         }
         self.profile.stop_now();
@@ -225,7 +225,7 @@ impl Axis {
     /// effect at once: the position reads 0 and a target given from now on
     /// is in the new coordinates.
     pub fn set_zero(&mut self) {
-        if self.state == AxisState::Homing {
+        if matches!(self.state, AxisState::Homing) {
             self.end_homing(HomingError::Aborted);
         }
         self.homed = false;
@@ -261,7 +261,7 @@ impl Axis {
         // The failed batch's replies never come, nor those of a batch
         // planned behind it (the overlapped tick drops it unsent).
         self.rb.in_flight = InFlight::EMPTY;
-        if self.state == AxisState::Homing {
+        if matches!(self.state, AxisState::Homing) {
             self.end_homing(HomingError::Fault);
         }
         self.homed = false;
@@ -336,7 +336,7 @@ impl Axis {
 
     /// Stop the profile where the chip is and set the chip up again.
     pub(super) fn restart_setup(&mut self) {
-        if self.state == AxisState::Homing {
+        if matches!(self.state, AxisState::Homing) {
             self.end_homing(HomingError::Fault);
         }
         self.homed = false;

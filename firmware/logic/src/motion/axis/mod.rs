@@ -75,7 +75,7 @@ use super::profile::{Limits, Mode, Profile};
 use super::units::{self, LIMIT_CAPS};
 pub use super::units::{logical_to_physical, physical_to_logical, MAX_LOGICAL_SHIFT};
 
-use crate::powerstep::chain::{Replies, MAX_COMMANDS};
+use crate::powerstep::chain::{Replies, StreamRead, MAX_COMMANDS};
 use crate::powerstep::commands::{Command, Direction, SPEED_MAX};
 use crate::powerstep::fields::{DriveMode, StepMode, StepSel};
 use crate::powerstep::registers::{sign_extend_22, wrap_22, Register};
@@ -285,15 +285,24 @@ impl InFlight {
     /// without ending its batch, whose replies never come).
     #[inline]
     fn push(&mut self, s: Sent) {
+        *self.push_slot() = s;
+    }
+
+    /// [`InFlight::push`]: the new record's slot, to be filled in place.
+    #[inline]
+    fn push_slot(&mut self) -> &mut Sent {
         if self.len == 2 {
             self.head ^= 1;
             self.len = 1;
         }
-        let at = usize::from((self.head ^ self.len) & 1);
-        if let Some(slot) = self.slots.get_mut(at) {
-            *slot = s;
-        }
+        let [a, b] = &mut self.slots;
+        let slot = if (self.head ^ self.len) & 1 == 0 {
+            a
+        } else {
+            b
+        };
         self.len += 1;
+        slot
     }
 
     /// The oldest batch's record (its replies are being absorbed).
@@ -571,7 +580,7 @@ impl Axis {
     /// register write may still be on its way: the idle-current timer and
     /// the panel's lamp do not count it as motion).
     pub fn is_at_rest(&self) -> bool {
-        self.state == AxisState::Idle && self.profile.is_settled()
+        matches!(self.state, AxisState::Idle) && self.profile.is_settled()
     }
     /// Every register the bridge configures has been written since the
     /// chip's last reset.

@@ -137,7 +137,7 @@ impl Axis {
         use crate::powerstep::registers::Access;
         let hiz = stays_hiz && self.hiz_confirmed();
         let stopped =
-            hiz || (self.state == AxisState::Idle && stays_still && !self.rb.status.busy());
+            hiz || (matches!(self.state, AxisState::Idle) && stays_still && !self.rb.status.busy());
         match reg.access() {
             Access::Always => true,
             Access::WhenStopped => stopped,
@@ -217,7 +217,7 @@ impl Axis {
     /// MAX_SPEED · 2¹⁰).
     pub(super) fn rate_tick(&mut self) {
         let capped = self.rate.running.unsigned_abs() >= u64::from(self.limits.max_speed) << 10;
-        if self.state == AxisState::Streaming && self.rate.steady && !capped {
+        if matches!(self.state, AxisState::Streaming) && self.rate.steady && !capped {
             self.rate.commanded = self.rate.commanded.wrapping_add(self.rate.running);
         } else {
             self.rate.disarm_tick();
@@ -577,6 +577,16 @@ impl Axis {
             }
             return;
         }
+        let (dir, mag) = self.run_speed();
+        if emit(Command::Run(dir, mag)) {
+            self.rate.running = signed_speed(dir, mag);
+        }
+    }
+
+    /// This tick's Run: the profile's speed (feed-forward) plus the
+    /// following error's correction, capped to what the chip can still
+    /// stop from before the target, in the chip's own time.
+    fn run_speed(&mut self) -> (Direction, u32) {
         // (speed_reg_with and correction_reg_with, remembered: while
         // cruising both are the last tick's.)
         let ff = self.speed_div.div_signed(self.profile.velocity_internal());
@@ -593,12 +603,76 @@ impl Axis {
             .rate
             .scale(spd.unsigned_abs())
             .min(u64::from(SPEED_MAX)) as u32;
-        if emit(Command::Run(dir, mag)) {
-            self.rate.running = match dir {
-                Direction::Forward => i64::from(mag),
-                Direction::Reverse => -i64::from(mag),
-            };
+        (dir, mag)
+    }
+
+    /// The control tick's common cases, known before anything changes:
+    /// the axis cruises (it streams, its profile keeps its speed and does
+    /// not settle this tick ([`Profile::coasting`]), its MAX_SPEED backstop
+    /// stands) or rests quietly (idle, settled, no one-shot command, not an
+    /// asleep chip to put back in HiZ), and nothing else waits for a slot
+    /// (no changed register, no extension-space read). [`Axis::plan`] then
+    /// sends the read and, cruising, a Run, nothing else; [`Axis::plan_plain`]
+    /// is that plan without the batch.
+    pub fn plain(&self) -> bool {
+        if self.ext_read.is_some() || self.image.dirty() {
+            return false;
         }
+        match self.state {
+            AxisState::Streaming => {
+                let (profile_max, backstop) = self.limits.backstop;
+                self.profile.coasting()
+                    && backstop != 0
+                    && profile_max == self.profile.limits().max_speed
+                    && self.limits.max_speed == backstop
+            }
+            AxisState::Idle => {
+                let fresh = self.rb.status_at > self.rb.sent_at;
+                self.profile.is_settled()
+                    && self.idle_command.is_none()
+                    && !(self.asleep && fresh && !self.rb.status.hiz())
+            }
+            _ => false,
+        }
+    }
+
+    /// [`Axis::plan`] for an axis that is [`Axis::plain`], step for step:
+    /// the read and the Run (none at rest) given back instead of pushed
+    /// into a batch (a test runs both side by side).
+    pub fn plan_plain(&mut self) -> (StreamRead, Option<(Direction, u32)>) {
+        self.tick = self.tick.wrapping_add(1);
+        self.rate_tick();
+        let read = if self.tick % 2 == 0 {
+            Read::Position
+        } else {
+            self.image.status_requested();
+            Read::Status
+        };
+        self.rb.read = None;
+        self.rb.expected_at_read = self.profile_physical();
+        let run = if matches!(self.state, AxisState::Streaming) {
+            let v0 = self.profile.velocity_internal();
+            self.profile.tick();
+            self.rate.steady = self.profile.velocity_internal() == v0;
+            let (dir, mag) = self.run_speed();
+            self.rate.running = signed_speed(dir, mag);
+            Some((dir, mag))
+        } else {
+            None
+        };
+        let sent = self.rb.in_flight.push_slot();
+        sent.tick = self.tick;
+        sent.commands = run.is_some();
+        sent.read = Some(read);
+        sent.expected = self.rb.expected_at_read;
+        sent.expected_valid = true;
+        sent.commanded = self.rate.commanded;
+        sent.epoch = self.rate.epoch;
+        let read = match read {
+            Read::Position => StreamRead::Param(Register::AbsPos),
+            Read::Status => StreamRead::Status,
+        };
+        (read, run)
     }
 
     /// A `Run` (`spd`, the feed-forward `ff` plus the correction) toward
@@ -638,5 +712,13 @@ impl Axis {
             return spd;
         }
         units::cap_speed(spd, cap2)
+    }
+}
+
+/// A Run's speed as the chip runs it, signed by its direction.
+fn signed_speed(dir: Direction, mag: u32) -> i64 {
+    match dir {
+        Direction::Forward => i64::from(mag),
+        Direction::Reverse => -i64::from(mag),
     }
 }

@@ -106,9 +106,13 @@ impl ClockRate {
         step_shift: u32,
     ) {
         if self.armed && epoch == self.base_epoch {
+            // Both sums stay far inside i64: a tick commands at most 2²⁰
+            // (SPEED) and moves at most a few hundred microsteps, and a
+            // window ends at RATE_WINDOW microsteps moved (2⁴³ ticks of
+            // the fastest Run before the command sum could wrap).
             let since = commanded.wrapping_sub(self.base);
-            self.cmd = self.cmd.saturating_add(since);
-            self.moved = self.moved.saturating_add(moved);
+            self.cmd = self.cmd.wrapping_add(since);
+            self.moved = self.moved.wrapping_add(moved);
         }
         self.base = commanded;
         self.base_epoch = epoch;
@@ -116,7 +120,8 @@ impl ClockRate {
         self.reads = self.reads.saturating_add(1);
         // A window covers RATE_WINDOW microsteps; after the first estimate
         // also RATE_READS reads (a fast axis would update every tick).
-        if self.moved.abs() < RATE_WINDOW || (self.estimates > 0 && self.reads < RATE_READS) {
+        let short = self.moved.unsigned_abs() < RATE_WINDOW.unsigned_abs();
+        if short || (self.estimates > 0 && self.reads < RATE_READS) {
             return;
         }
         self.reads = 0;

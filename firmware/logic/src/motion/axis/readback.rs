@@ -2,6 +2,7 @@
 //! stalls, refusals), extension-space register reads.
 
 use super::*;
+use crate::powerstep::chain::Reply;
 
 impl Axis {
     /// Take the replies of the oldest batch in flight for the axis's device.
@@ -13,9 +14,7 @@ impl Axis {
             match r.index {
                 Some((at, i)) if at == sent.tick => {
                     r.index = None;
-                    if let Some(crate::powerstep::chain::Reply::Param(reg, v)) =
-                        replies.get(device, i)
-                    {
+                    if let Some(Reply::Param(reg, v)) = replies.get(device, i) {
                         if reg == r.reg {
                             r.value = Some((v, sent.tick));
                         }
@@ -26,17 +25,26 @@ impl Axis {
                 _ => {}
             }
         }
+        // The read is the plan's first command ([`Axis::plan_read`]).
+        match (sent.read, replies.get(device, 0)) {
+            (Some(Read::Position), Some(Reply::Param(Register::AbsPos, raw))) => {
+                self.take_position(raw, &sent);
+            }
+            (Some(Read::Status), Some(Reply::Status(s))) => self.take_status(s, sent.tick),
+            _ => {}
+        }
+    }
+
+    /// [`Axis::absorb`] for a batch planned plain ([`Axis::plan_plain`]):
+    /// its only reply is the read's, `raw` the 3 bytes from window 1 (a
+    /// position read's 22 bits, or a STATUS in the first two).
+    pub fn absorb_plain(&mut self, raw: u32) {
+        let Some(sent) = self.rb.in_flight.pop() else {
+            return;
+        };
         match sent.read {
-            Some(Read::Position) => {
-                if let Some(raw) = replies.param(device, Register::AbsPos) {
-                    self.take_position(raw, &sent);
-                }
-            }
-            Some(Read::Status) => {
-                if let Some(s) = replies.status(device) {
-                    self.take_status(s, sent.tick);
-                }
-            }
+            Some(Read::Position) => self.take_position(raw & Register::AbsPos.mask(), &sent),
+            Some(Read::Status) => self.take_status(Status((raw >> 8) as u16), sent.tick),
             None => {}
         }
     }
@@ -59,7 +67,7 @@ impl Axis {
             // when streaming began runs its own ramps.
             let follows =
                 sent.expected_valid && (sent.expected - rb.chip_pos).abs() <= RATE_MAX_ERROR;
-            if self.state == AxisState::Streaming && rb.raw.is_some() && follows {
+            if matches!(self.state, AxisState::Streaming) && rb.raw.is_some() && follows {
                 self.rate.take(
                     i64::from(delta),
                     (sent.commanded, sent.epoch),
@@ -119,7 +127,7 @@ impl Axis {
                 ThermalStatus::BridgeShutdown | ThermalStatus::DeviceShutdown
             )
         {
-            if self.state == AxisState::Homing {
+            if matches!(self.state, AxisState::Homing) {
                 self.end_homing(HomingError::Fault);
             }
             self.fault = Some(if s.overcurrent() {
