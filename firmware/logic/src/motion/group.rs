@@ -201,10 +201,12 @@ impl AxisGroup {
         // to 3 (a 2-byte STATUS in 1 and 2).
         let [_, w1, w2, w3, ..] = rx;
         let n = plan.devices();
-        for (d, raw) in self.raw.iter_mut().enumerate().take(n) {
-            let col = n.saturating_sub(d).saturating_sub(1);
-            let byte = |w: &[u8; MAX_DEVICES]| w.get(col).map_or(0, |b| u32::from(*b));
-            *raw = (byte(w1) << 16) | (byte(w2) << 8) | byte(w3);
+        let (Some(a), Some(b), Some(c)) = (w1.get(..n), w2.get(..n), w3.get(..n)) else {
+            return Ok(());
+        };
+        let columns = a.iter().rev().zip(b.iter().rev()).zip(c.iter().rev());
+        for (raw, ((x, y), z)) in self.raw.iter_mut().zip(columns) {
+            *raw = (u32::from(*x) << 16) | (u32::from(*y) << 8) | u32::from(*z);
         }
         Ok(())
     }

@@ -182,6 +182,7 @@ impl Axis {
         }
         self.profile.stop_now();
         self.cfg.logical_shift = shift;
+        self.memo.target = (0, 0);
         self.speed_div = Recalled::new(units::speed_divisor(self.cfg.tick_us, shift));
         if self.stop.zero {
             self.profile.set_position(0);

@@ -419,6 +419,10 @@ struct LimitMemo {
     ramps: Option<(RampKey, (u32, u32))>,
     /// (deceleration, logical shift, STEP_SEL) of `stop_cap`.
     stop_cap: Option<(u32, u8, StepSel)>,
+    /// A position target and its physical microsteps (the stop cap asks
+    /// every tick; put back to (0, 0) when the logical step changes, the
+    /// only input besides the target that can).
+    target: (i64, i64),
 }
 
 /// The chip's ACC and DEC registers and the logical step mode.
@@ -464,6 +468,7 @@ impl Axis {
             memo: LimitMemo {
                 ramps: None,
                 stop_cap: None,
+                target: (0, 0),
             },
             profile: Profile::new(cfg.tick_us, limits),
             state: AxisState::Setup(phase::HIZ),

@@ -586,6 +586,7 @@ impl Axis {
     /// This tick's Run: the profile's speed (feed-forward) plus the
     /// following error's correction, capped to what the chip can still
     /// stop from before the target, in the chip's own time.
+    #[inline(always)]
     fn run_speed(&mut self) -> (Direction, u32) {
         // (speed_reg_with and correction_reg_with, remembered: while
         // cruising both are the last tick's.)
@@ -684,14 +685,18 @@ impl Axis {
     /// carried past the target by the correction. Only while the profile
     /// itself can stop on the target in that direction: one that cannot
     /// (a retarget inside the braking distance) passes it on purpose.
-    pub(super) fn cap_to_stop(&self, ff: i64, spd: i64) -> i64 {
+    pub(super) fn cap_to_stop(&mut self, ff: i64, spd: i64) -> i64 {
         let Mode::Position(t) = self.profile.mode() else {
             return spd;
         };
         if (ff >= 0) != (spd >= 0) {
             return spd;
         }
-        let target = logical_to_physical(t, self.cfg.logical_shift, self.cfg.step);
+        if self.memo.target.0 != t {
+            let phys = logical_to_physical(t, self.cfg.logical_shift, self.cfg.step);
+            self.memo.target = (t, phys);
+        }
+        let target = self.memo.target.1;
         // Where the chip should be as this Run reaches it, and how far
         // behind that it is (ahead of it if negative), toward the target.
         let profile = self.rb.expected_at_read;
