@@ -384,6 +384,16 @@ pub enum StreamRead {
     Param(Register),
 }
 
+/// The command after a streaming tick's read ([`Plan::stream_put`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum StreamCmd {
+    /// Run (direction, SPEED).
+    Run(Direction, u32),
+    /// SoftStop (the end of a move).
+    SoftStop,
+}
+
 impl StreamRead {
     /// The read as a command.
     pub const fn command(self) -> Command {
@@ -583,10 +593,9 @@ impl Plan {
     /// The streaming tick's plan written one device at a time, without a
     /// [`Batch`]: this for a chain of `n` devices (1 to [`MAX_DEVICES`];
     /// false, and the plan untouched, for any other `n`), then
-    /// [`Plan::stream_put`] for every device. The result is the plan
-    /// [`Plan::schedule`] makes of a batch of a read and a Run (or only the
-    /// read) per device, as long as one device has a Run (a test compares
-    /// the two).
+    /// [`Plan::stream_put`] for every device, then [`Plan::stream_end`].
+    /// The result is the plan [`Plan::schedule`] makes of a batch of a read
+    /// and at most one [`StreamCmd`] per device (a test compares the two).
     pub fn stream_begin(&mut self, n: usize) -> bool {
         if n == 0 || n > MAX_DEVICES {
             return false;
@@ -601,23 +610,24 @@ impl Plan {
         true
     }
 
-    /// Device `device`'s read (window 0, its reply from window 1) and Run
-    /// (windows 1 to 4; none: NOPs, the device only reads) in a plan begun
-    /// by [`Plan::stream_begin`].
+    /// Device `device`'s read (window 0, its reply from window 1) and
+    /// command: a Run in windows 1 to 4, a SoftStop in window 4 (where it
+    /// ends with the Runs; [`Plan::stream_end`] moves it if no device
+    /// runs), none (the device only reads), in a plan begun by
+    /// [`Plan::stream_begin`].
     // Indices: device < n ≤ MAX_DEVICES (checked), rows 0..5 of MAX_WINDOWS.
     #[allow(clippy::arithmetic_side_effects)]
     pub fn stream_put(
         &mut self,
         device: usize,
         read: StreamRead,
-        run: Option<(Direction, u32)>,
+        cmd: Option<StreamCmd>,
     ) -> Result<(), ScheduleError> {
         let n = usize::from(self.n);
         if device >= n {
             return Err(ScheduleError::NoSuchDevice(device.min(255) as u8));
         }
         let col = n - 1 - device;
-        let command = read.command();
         let [r0, r1, r2, r3, r4, ..] = &mut self.tx;
         if let Some(cell) = r0.get_mut(col) {
             *cell = match read {
@@ -625,19 +635,28 @@ impl Plan {
                 StreamRead::Param(r) => opcode::GET_PARAM | r.address(),
             };
         }
-        if let Some((dir, speed)) = run {
-            let s = speed.min(SPEED_MAX).to_be_bytes();
-            for (row, b) in [
-                (r1, opcode::RUN | dir.bit()),
-                (r2, s[1]),
-                (r3, s[2]),
-                (r4, s[3]),
-            ] {
-                if let Some(cell) = row.get_mut(col) {
-                    *cell = b;
+        match cmd {
+            Some(StreamCmd::Run(dir, speed)) => {
+                let s = speed.min(SPEED_MAX).to_be_bytes();
+                for (row, b) in [
+                    (r1, opcode::RUN | dir.bit()),
+                    (r2, s[1]),
+                    (r3, s[2]),
+                    (r4, s[3]),
+                ] {
+                    if let Some(cell) = row.get_mut(col) {
+                        *cell = b;
+                    }
                 }
             }
+            Some(StreamCmd::SoftStop) => {
+                if let Some(cell) = r4.get_mut(col) {
+                    *cell = opcode::SOFT_STOP;
+                }
+            }
+            None => {}
         }
+        let command = read.command();
         self.reads
             .push(ReadSlot {
                 device: device as u8,
@@ -647,6 +666,37 @@ impl Plan {
                 command,
             })
             .map_err(|_| ScheduleError::TooManyCommands)
+    }
+
+    /// The end of a plan written by [`Plan::stream_put`]: if no device
+    /// got a Run, the general layout's shorter batch (the SoftStops in
+    /// window 1, the windows the reads' replies need).
+    pub fn stream_end(&mut self) {
+        let n = usize::from(self.n);
+        let [_, r1, _, _, r4, ..] = &mut self.tx;
+        let (Some(r1), Some(r4)) = (r1.get_mut(..n), r4.get_mut(..n)) else {
+            return;
+        };
+        // A Run's command byte is in window 1, and nothing else is.
+        if r1.iter().any(|b| *b != 0) {
+            return;
+        }
+        let mut stops = false;
+        for (w1, w4) in r1.iter_mut().zip(r4.iter_mut()) {
+            if *w4 == opcode::SOFT_STOP {
+                *w1 = core::mem::take(w4);
+                stops = true;
+            }
+        }
+        let reads_end = self
+            .reads
+            .iter()
+            .map(|r| r.len.saturating_add(1))
+            .max()
+            .unwrap_or(0);
+        let sync = if stops { 2 } else { 0 };
+        self.windows = reads_end.max(sync);
+        self.sync_window = sync.saturating_sub(1);
     }
 
     /// Chain length this plan was made for.
@@ -1116,19 +1166,26 @@ mod tests {
             Command::GetParam(Register::AdcOut),
         ];
         for n in 1..=MAX_DEVICES {
-            for k in 0..reads.len() {
-                let mut b = Batch::new(n);
-                // Device d runs unless bit d of `rests` (some device runs).
-                let rests = (k as u32 * 0x2D) & ((1 << n) - 1) & !1;
-                for d in 0..n {
-                    b.push(d, reads[(k + d) % reads.len()]).unwrap();
-                    let dir = if d % 2 == 0 {
+            for k in 0..reads.len() * 9 {
+                // Device d's command after its read: a Run, a SoftStop or
+                // none, in every mix (some with no Run at all).
+                let what = |d: usize| (k / reads.len() + d * (k % 3 + 1)) % 3;
+                let dir = |d: usize| {
+                    if d % 2 == 0 {
                         Direction::Forward
                     } else {
                         Direction::Reverse
-                    };
-                    if rests & (1 << d) == 0 {
-                        b.push(d, Command::Run(dir, 0x12_3456 + d as u32)).unwrap();
+                    }
+                };
+                let mut b = Batch::new(n);
+                for d in 0..n {
+                    b.push(d, reads[(k + d) % reads.len()]).unwrap();
+                    match what(d) {
+                        0 => b
+                            .push(d, Command::Run(dir(d), 0x12_3456 + d as u32))
+                            .unwrap(),
+                        1 => b.push(d, Command::SoftStop).unwrap(),
+                        _ => {}
                     }
                 }
                 let fast = Plan::new(&b).unwrap();
@@ -1136,7 +1193,8 @@ mod tests {
                 slow.schedule_general(&b).unwrap();
                 assert_eq!(fast, slow, "n = {n}, k = {k}");
                 let mut probe = Plan::default();
-                assert_eq!(probe.schedule_streaming(&b), rests == 0);
+                let all_run = (0..n).all(|d| what(d) == 0);
+                assert_eq!(probe.schedule_streaming(&b), all_run);
                 // Written a device at a time, without the batch: the same.
                 let mut put = Plan::default();
                 put.schedule(&Batch::all(3, Command::HardStop)).unwrap();
@@ -1146,15 +1204,26 @@ mod tests {
                         Command::GetParam(r) => StreamRead::Param(r),
                         _ => StreamRead::Status,
                     };
-                    let dir = if d % 2 == 0 {
-                        Direction::Forward
-                    } else {
-                        Direction::Reverse
+                    let cmd = match what(d) {
+                        0 => Some(StreamCmd::Run(dir(d), 0x12_3456 + d as u32)),
+                        1 => Some(StreamCmd::SoftStop),
+                        _ => None,
                     };
-                    let run = (rests & (1 << d) == 0).then_some((dir, 0x12_3456 + d as u32));
-                    put.stream_put(d, read, run).unwrap();
+                    put.stream_put(d, read, cmd).unwrap();
                 }
-                assert_eq!(put, slow, "n = {n}, k = {k}");
+                put.stream_end();
+                assert_eq!(put.windows(), slow.windows(), "n = {n}, k = {k}");
+                assert_eq!(put.sync_window(), slow.sync_window(), "n = {n}, k = {k}");
+                for w in 0..slow.windows() {
+                    assert_eq!(put.window(w), slow.window(w), "n = {n}, k = {k}, w = {w}");
+                }
+                let mut rx: Frames = [[0; MAX_DEVICES]; MAX_WINDOWS];
+                for (w, row) in rx.iter_mut().enumerate() {
+                    for (c, b) in row.iter_mut().enumerate() {
+                        *b = (w * 31 + c * 7 + k) as u8;
+                    }
+                }
+                assert_eq!(put.decode(&rx), slow.decode(&rx), "n = {n}, k = {k}");
             }
         }
         // Anything else takes the general layout.
@@ -1172,7 +1241,11 @@ mod tests {
         assert!(!plan.stream_begin(MAX_DEVICES + 1));
         assert!(plan.stream_begin(2));
         assert_eq!(
-            plan.stream_put(2, StreamRead::Status, Some((Direction::Forward, 1))),
+            plan.stream_put(
+                2,
+                StreamRead::Status,
+                Some(StreamCmd::Run(Direction::Forward, 1))
+            ),
             Err(ScheduleError::NoSuchDevice(2))
         );
         assert_eq!(plan.windows(), STREAM_WINDOWS);

@@ -192,16 +192,16 @@ impl<B: ChainBus> Bridge<B> {
         self.group.set_window_budget(windows);
     }
 
-    /// Whether a tick in which every axis cruises or rests is planned
-    /// without the batch (`AxisGroup::set_cruise_shortcut`; on by default,
+    /// Whether a tick in which every axis streams or rests is planned
+    /// without the batch (`AxisGroup::set_plain_shortcut`; on by default,
     /// the tests turn it off to compare the two).
-    pub fn set_cruise_shortcut(&mut self, on: bool) {
-        self.group.set_cruise_shortcut(on);
+    pub fn set_plain_shortcut(&mut self, on: bool) {
+        self.group.set_plain_shortcut(on);
     }
 
-    /// Ticks planned on the cruise shortcut so far (wrapping).
-    pub fn cruised_ticks(&self) -> u32 {
-        self.group.cruised_ticks()
+    /// Ticks planned without the batch so far (wrapping).
+    pub fn plain_ticks(&self) -> u32 {
+        self.group.plain_ticks()
     }
 
     /// The ticks run overlapped ([`Bridge::set_overlapped`]).

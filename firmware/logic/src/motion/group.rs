@@ -3,7 +3,7 @@
 
 use heapless::Vec;
 
-use super::axis::{Axis, AxisState};
+use super::axis::Axis;
 use crate::powerstep::chain::{
     Batch, Chain, ChainBus, ChainError, Frames, Plan, Replies, ScheduleError, MAX_DEVICES,
     MAX_WINDOWS,
@@ -21,11 +21,11 @@ pub struct AxisGroup {
     /// `plans.1` is the one being made.
     second: bool,
     replies: Replies,
-    /// Ticks in which every axis cruises or rests plan without the batch
+    /// Ticks in which every axis streams or rests plan without the batch
     /// ([`AxisGroup::prepare`], [`Axis::plain`]).
     shortcut: bool,
     /// Ticks planned that way (wrapping).
-    cruised: u32,
+    plained: u32,
     /// Which plan (`plans.0`, `plans.1`) was made that way: its replies
     /// are the 3 bytes from window 1 of every device's column.
     plain: [bool; 2],
@@ -65,7 +65,7 @@ impl AxisGroup {
             second: false,
             replies: Replies::default(),
             shortcut: true,
-            cruised: 0,
+            plained: 0,
             plain: [false; 2],
             raw_decoded: false,
             raw: [0; MAX_DEVICES],
@@ -109,16 +109,16 @@ impl AxisGroup {
         self.batch.set_window_budget(windows);
     }
 
-    /// Whether a tick in which every axis cruises or rests ([`Axis::plain`])
-    /// is planned without the batch (on by default; the tests turn it off
-    /// to compare the two).
-    pub fn set_cruise_shortcut(&mut self, on: bool) {
+    /// Whether a tick in which every axis streams or rests
+    /// ([`Axis::plain`]) is planned without the batch (on by default; the
+    /// tests turn it off to compare the two).
+    pub fn set_plain_shortcut(&mut self, on: bool) {
         self.shortcut = on;
     }
 
-    /// Ticks planned on the cruise shortcut so far (wrapping).
-    pub fn cruised_ticks(&self) -> u32 {
-        self.cruised
+    /// Ticks planned without the batch so far (wrapping).
+    pub fn plain_ticks(&self) -> u32 {
+        self.plained
     }
 
     /// The plan being made (`making`) or the other one.
@@ -131,21 +131,17 @@ impl AxisGroup {
         let [a, b] = [&mut self.plans.0, &mut self.plans.1];
         let plan = if self.second { b } else { a };
         let plain_slot = usize::from(self.second);
-        // The common tick, every axis cruising or resting: each writes its
-        // read and its Run straight into the plan (the same plan as below).
+        // The common tick, every axis streaming or resting: each writes
+        // its read and its Run (or SoftStop) straight into the plan (the
+        // same plan as below).
         let n = self.axes.len();
-        // (At least one Run: a batch of reads alone is shorter.)
-        let mut runs = false;
-        let plain = self.axes.iter().all(|a| {
-            runs |= matches!(a.state(), AxisState::Streaming);
-            a.plain()
-        });
-        if self.shortcut && plain && runs && plan.stream_begin(n) {
+        if self.shortcut && self.axes.iter().all(Axis::plain) && plan.stream_begin(n) {
             for (d, axis) in self.axes.iter_mut().enumerate() {
-                let (read, run) = axis.plan_plain();
-                plan.stream_put(d, read, run)?;
+                let (read, cmd) = axis.plan_plain();
+                plan.stream_put(d, read, cmd)?;
             }
-            self.cruised = self.cruised.wrapping_add(1);
+            plan.stream_end();
+            self.plained = self.plained.wrapping_add(1);
             set(&mut self.plain, plain_slot, true);
             return Ok(plan);
         }

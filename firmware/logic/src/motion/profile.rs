@@ -478,12 +478,6 @@ impl Profile {
         step.clamp(i128::from(i64::MIN), i128::from(i64::MAX)) as i64
     }
 
-    /// The next [`Profile::tick`] is a cruise's: it keeps the speed (at
-    /// most the max speed, not 0), so the profile does not settle.
-    pub fn coasting(&self) -> bool {
-        self.coast > 0 && self.vel != 0 && self.vel.unsigned_abs() <= self.vmax.unsigned_abs()
-    }
-
     /// Advance one tick. Returns the new velocity (2⁻³² steps/tick).
     #[inline]
     pub fn tick(&mut self) -> i64 {

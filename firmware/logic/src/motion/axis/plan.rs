@@ -608,13 +608,13 @@ impl Axis {
     }
 
     /// The control tick's common cases, known before anything changes:
-    /// the axis cruises (it streams, its profile keeps its speed and does
-    /// not settle this tick ([`Profile::coasting`]), its MAX_SPEED backstop
-    /// stands) or rests quietly (idle, settled, no one-shot command, not an
-    /// asleep chip to put back in HiZ), and nothing else waits for a slot
-    /// (no changed register, no extension-space read). [`Axis::plan`] then
-    /// sends the read and, cruising, a Run, nothing else; [`Axis::plan_plain`]
-    /// is that plan without the batch.
+    /// the axis streams (at most at its max speed, so the profile's tick
+    /// keeps it there or below; its MAX_SPEED backstop in place) or rests
+    /// quietly (idle, settled, no one-shot command, not an asleep chip to
+    /// put back in HiZ), and nothing else waits for a slot (no changed
+    /// register, no extension-space read). [`Axis::plan`] then sends the
+    /// read and, streaming, a Run, or the SoftStop that ends the move;
+    /// nothing else. [`Axis::plan_plain`] is that plan without the batch.
     pub fn plain(&self) -> bool {
         if self.ext_read.is_some() || self.image.dirty() {
             return false;
@@ -622,7 +622,8 @@ impl Axis {
         match self.state {
             AxisState::Streaming => {
                 let (profile_max, backstop) = self.limits.backstop;
-                self.profile.coasting()
+                let vmax = self.profile.internal_limits().0.unsigned_abs();
+                self.profile.velocity_internal().unsigned_abs() <= vmax
                     && backstop != 0
                     && profile_max == self.profile.limits().max_speed
                     && self.limits.max_speed == backstop
@@ -638,9 +639,9 @@ impl Axis {
     }
 
     /// [`Axis::plan`] for an axis that is [`Axis::plain`], step for step:
-    /// the read and the Run (none at rest) given back instead of pushed
-    /// into a batch (a test runs both side by side).
-    pub fn plan_plain(&mut self) -> (StreamRead, Option<(Direction, u32)>) {
+    /// the read and the command after it (none at rest) given back instead
+    /// of pushed into a batch (a test runs both side by side).
+    pub fn plan_plain(&mut self) -> (StreamRead, Option<StreamCmd>) {
         self.tick = self.tick.wrapping_add(1);
         self.rate_tick();
         let read = if self.tick % 2 == 0 {
@@ -651,19 +652,27 @@ impl Axis {
         };
         self.rb.read = None;
         self.rb.expected_at_read = self.profile_physical();
-        let run = if matches!(self.state, AxisState::Streaming) {
+        let cmd = if matches!(self.state, AxisState::Streaming) {
             let v0 = self.profile.velocity_internal();
             self.profile.tick();
             self.rate.steady = self.profile.velocity_internal() == v0;
-            let (dir, mag) = self.run_speed();
-            self.rate.running = signed_speed(dir, mag);
-            Some((dir, mag))
+            if self.profile.is_settled() {
+                // The end of the move ([`Axis::stream`]).
+                self.stop.after = AfterStop::Land;
+                self.rb.sent_at = self.tick;
+                self.state = AxisState::Stopping;
+                Some(StreamCmd::SoftStop)
+            } else {
+                let (dir, mag) = self.run_speed();
+                self.rate.running = signed_speed(dir, mag);
+                Some(StreamCmd::Run(dir, mag))
+            }
         } else {
             None
         };
         let sent = self.rb.in_flight.push_slot();
         sent.tick = self.tick;
-        sent.commands = run.is_some();
+        sent.commands = cmd.is_some();
         sent.read = Some(read);
         sent.expected = self.rb.expected_at_read;
         sent.expected_valid = true;
@@ -673,7 +682,7 @@ impl Axis {
             Read::Position => StreamRead::Param(Register::AbsPos),
             Read::Status => StreamRead::Status,
         };
-        (read, run)
+        (read, cmd)
     }
 
     /// A `Run` (`spd`, the feed-forward `ff` plus the correction) toward

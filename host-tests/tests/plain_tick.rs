@@ -1,8 +1,8 @@
-//! The control tick's cruise shortcut (`AxisGroup::prepare`: every axis
-//! cruising writes its read and Run straight into the plan, no batch) puts
-//! on the chain, tick for tick, what the general plan puts there: two rigs
-//! run the same random commands, one with the shortcut off, and every
-//! window, every chip and every axis's state stay the same.
+//! The plain tick (`AxisGroup::prepare`: when every axis streams or rests,
+//! each writes its read and its Run or SoftStop straight into the plan, no
+//! batch) puts on the chain, tick for tick, what the general plan puts
+//! there: two rigs run the same random commands, one with the shortcut
+//! off, and every window, every chip and every axis's state stay the same.
 
 use bridge_logic::motion::{AxisConfig, Limits};
 use bridge_logic::powerstep::registers::Register;
@@ -51,7 +51,7 @@ fn assert_same(fast: &Rig, slow: &Rig, tick: u32) {
 }
 
 #[test]
-fn a_cruising_tick_puts_on_the_chain_what_the_batch_would() {
+fn a_plain_tick_puts_on_the_chain_what_the_batch_would() {
     let configs = [
         cfg(7, StepSel::OneTwentyEighth, DriveMode::Voltage),
         cfg(4, StepSel::OneTwentyEighth, DriveMode::Voltage),
@@ -61,7 +61,7 @@ fn a_cruising_tick_puts_on_the_chain_what_the_batch_would() {
     let start = limits(4_000, 40_000, 40_000);
     let mut fast = Rig::new(&configs, start);
     let mut slow = Rig::new(&configs, start);
-    slow.group.set_cruise_shortcut(false);
+    slow.group.set_plain_shortcut(false);
     let mut rng = Rng(0x5eed_c401_5e00_0001);
     let ticks_per_s = 1_000_000 / TICK_US;
     let mut total = 0u32;
@@ -73,7 +73,12 @@ fn a_cruising_tick_puts_on_the_chain_what_the_batch_would() {
             let mut r = Rng(rng.0 ^ u64::from(round));
             let axis = rig.axis(k);
             match what {
-                0..=4 => axis.move_to(r.range(-400_000, 400_000)),
+                0..=2 => axis.move_to(r.range(-400_000, 400_000)),
+                // Short moves: they end (the SoftStop) within the round.
+                3 | 4 => {
+                    let here = axis.required_position();
+                    axis.move_to(here + r.range(-3_000, 3_000));
+                }
                 5 => axis.run_at(r.range(-3_000, 3_000) as i32),
                 6 => axis.set_limits(limits(
                     r.range(500, 6_000) as u32,
@@ -92,33 +97,39 @@ fn a_cruising_tick_puts_on_the_chain_what_the_batch_would() {
         }
         let _ = rng.next_u64();
         let ticks = rng.range(1, i64::from(ticks_per_s) * 2) as u32;
-        for _ in 0..ticks {
+        for t in 0..ticks {
             fast.tick();
             slow.tick();
             total += 1;
             assert_same(&fast, &slow, total);
+            if what == 9 && t == 4 {
+                // The bus comes back for its value (until then the axis
+                // takes the batch: the read waits for a slot).
+                let a = fast.axis(k).read_register(Register::Speed);
+                let b = slow.axis(k).read_register(Register::Speed);
+                assert_eq!(a, b);
+            }
         }
     }
     // The shortcut ran (and the comparison means something).
-    let cruised = fast.group.cruised_ticks();
-    // (A few percent of the ticks: the random commands keep the axes
-    // ramping most of the time; 8 % at a 5 kHz tick, 14 % at 1 kHz.)
-    assert!(cruised > total / 25, "{cruised} of {total} ticks cruised");
-    assert_eq!(slow.group.cruised_ticks(), 0);
+    let cruised = fast.group.plain_ticks();
+    eprintln!("{cruised} of {total} ticks plain");
+    assert!(cruised > total / 4, "{cruised} of {total} ticks plain");
+    assert_eq!(slow.group.plain_ticks(), 0);
 }
 
 /// The same with the overlapped tick (batch k on the bus while k + 1 is
 /// planned, two plans in flight) on whole bridges: the chips receive the
 /// same commands and every axis keeps the same state.
 #[test]
-fn an_overlapped_cruising_tick_puts_on_the_chain_what_the_batch_would() {
+fn an_overlapped_plain_tick_puts_on_the_chain_what_the_batch_would() {
     use bridge_logic::postep60::{PowerStage, Request, Settings};
     use host_tests::sim_bridge::{chip, new_bridge, tick_overlapped};
     let n = 4;
     let make = |shortcut: bool| {
         let mut b = new_bridge(n, Settings::FACTORY, PowerStage::REFERENCE);
         tick_overlapped(&mut b, n, host_tests::sim_bridge::TICK_US);
-        b.set_cruise_shortcut(shortcut);
+        b.set_plain_shortcut(shortcut);
         b
     };
     let (mut fast, mut slow) = (make(true), make(false));
@@ -151,7 +162,8 @@ fn an_overlapped_cruising_tick_puts_on_the_chain_what_the_batch_would() {
         }
     }
     assert!(fast.is_overlapped());
-    let cruised = u64::from(fast.cruised_ticks());
-    assert!(cruised > now / 10, "{cruised} of {now} ticks cruised");
-    assert_eq!(slow.cruised_ticks(), 0);
+    let cruised = u64::from(fast.plain_ticks());
+    eprintln!("{cruised} of {now} ticks plain");
+    assert!(cruised > now / 4, "{cruised} of {now} ticks plain");
+    assert_eq!(slow.plain_ticks(), 0);
 }
