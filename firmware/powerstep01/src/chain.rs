@@ -906,7 +906,7 @@ impl<B: ChainBus> Chain<B> {
     }
 
     /// Measure the chain length: three NOP windows (finish any half-received
-    /// command), then one window of [`DETECT_LEN`] distinct bytes; the offset at
+    /// command), then one window of `DETECT_LEN` (16) distinct bytes; the offset at
     /// which they come back is N. The caller should have pulsed STBY/RESET.
     pub fn detect(&mut self) -> Result<usize, ChainError<B::Error>> {
         let nops = [0u8; DETECT_LEN];

@@ -173,12 +173,13 @@ pub enum IoExtError {
     BadPlan,
 }
 
-/// What [`IoExtPort::run`] did with an action.
+/// What [`super::IoExtPort::run`] did with an action.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[cfg_attr(feature = "defmt", derive(defmt::Format))]
 pub enum Started {
-    /// The transfer runs; its end comes from [`IoExtPort::on_interrupt`]
-    /// (or [`IoExtPort::abort`] after [`TransferPlan::timeout_us`]).
+    /// The transfer runs; its end comes from [`super::IoExtPort::on_interrupt`]
+    /// (or [`super::IoExtPort::abort`] after
+    /// [`bridge_logic::ioext::TransferPlan::timeout_us`]).
     Running,
     /// The transfer has already ended (or could not start): report this.
     Ended(Result<WireBits, IoExtError>),

@@ -373,7 +373,7 @@ impl<B: ChainBus> Bridge<B> {
     }
 
     /// [`Bridge::new`] at the fastest tick rate up to `build_hz` that the
-    /// detected chain fits ([`rate::fit`]): the chain is detected once,
+    /// detected chain fits ([`crate::rate::fit`]): the chain is detected once,
     /// and the axes are set up for the rate returned with the bridge.
     pub fn new_fitted(
         bus: B,

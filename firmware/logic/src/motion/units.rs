@@ -390,7 +390,7 @@ const fn largest_within(limit: u64, logical_shift: u8, ramp: bool) -> u32 {
 ///
 /// Closed form of "the largest `a` with `ramp_reg_exact(a) ≤ reg`" (a move
 /// start needs it; a bisection cost ~70 000 instructions per axis on the
-/// target). Every step inverts one monotone step of [`ramp_reg_exact`]:
+/// target). Every step inverts one monotone step of `ramp_reg_exact`:
 /// `reg₀ = ⌊(fast·2²⁴ + den/2) / den⌋ ≤ reg − 1 ⟺ fast ≤ F = ⌊(reg·den −
 /// den/2 − 1) / 2²⁴⌋`; `fast = ⌊3·full/2⌋ ≤ F ⟺ full ≤ G = ⌊(2F + 1)/3⌋`;
 /// `full = ⌈a·2¹⁶/2^L⌉ ≤ G ⟺ a ≤ ⌊G·2^L / 2¹⁶⌋`. Equal to the bisection

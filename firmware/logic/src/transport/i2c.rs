@@ -182,7 +182,7 @@ pub const SOFT_STOP: u8 = 0x71;
 /// read from the chip: read again after a control tick (1 ms).
 pub const EXT_READ: u8 = 0x72;
 /// Extension: write registers of the extension space: BYTE0..1 address,
-/// then 1..=3 registers MSB first. A read after it returns [status].
+/// then 1..=3 registers MSB first. A read after it returns the status.
 pub const EXT_WRITE: u8 = 0x73;
 /// Registers one I2C extension access carries.
 pub const EXT_MAX: usize = 3;
