@@ -309,6 +309,18 @@ impl Profile {
         self.dec_limit = dec;
     }
 
+    /// Work out `limits`' internal units now, for a later
+    /// [`Profile::set_limits`] (remembered with the last ones), and the
+    /// divisor of their deceleration (kept beside the one in use): nothing
+    /// else changes.
+    pub fn prepare_limits(&mut self, limits: Limits) {
+        let (_, _, dec) = self.internal(limits);
+        let d = dec.unsigned_abs();
+        if self.dec_div.get() != d && self.prev_div.get() != d {
+            self.prev_div = Divisor::new(d);
+        }
+    }
+
     /// `limits` in internal units: (vmax, acc, dec), remembered for the last
     /// two limits (module doc of [`Profile`]'s fields).
     fn internal(&mut self, limits: Limits) -> Internal {

@@ -307,8 +307,10 @@ const fn isqrt(x: u64) -> u64 {
 const fn backstop_reg_exact(v: u32, logical_shift: u8) -> u64 {
     let full = full_q16(v, logical_shift);
     let backstop = full + full * BACKSTOP_QUARTERS / 4 + (BACKSTOP_EXTRA << 16);
-    // MAX_SPEED = v · 2¹⁸ / 4·10⁶ = v_q16 · 4 / 4·10⁶ (units::max_speed_from_steps_per_s)
-    let reg = (backstop * 4 + 2_000_000) / 4_000_000;
+    // MAX_SPEED = v · 2¹⁸ / 4·10⁶ = v_q16 · 4 / 4·10⁶ (units::max_speed_from_steps_per_s),
+    // by the core's 32-bit divide (a move's first tick asks; a 64-bit
+    // division is a library call on the M4): backstop < 2⁴⁹.
+    let reg = super::divisor::div_u64_by_u32(backstop * 4 + 2_000_000, 4_000_000);
     if reg == 0 {
         1
     } else {

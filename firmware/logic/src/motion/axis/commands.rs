@@ -13,6 +13,7 @@ impl Axis {
             return;
         }
         self.fault = None;
+        self.warm_start();
         self.profile.move_to(target);
     }
     /// Run at a signed speed (logical steps/s; ignored while asleep or homing).
@@ -21,6 +22,7 @@ impl Axis {
             return;
         }
         self.fault = None;
+        self.warm_start();
         self.profile.run_at(steps_per_s);
     }
 
@@ -293,11 +295,58 @@ impl Axis {
         l
     }
 
+    /// The ACC and DEC registers a move's start writes ([`units::ramp_reg`]
+    /// of the requested limits clamped to the chip), worked out again only
+    /// when the limits or the step mode change.
+    pub(super) fn start_regs(&mut self) -> (u32, u32) {
+        let key = (self.limits.requested, self.cfg.logical_shift);
+        if let Some((k, regs)) = self.memo.start {
+            if k == key {
+                return regs;
+            }
+        }
+        let l = units::clamp_to_chip(key.0, key.1);
+        let regs = (units::ramp_reg(l.acc, key.1), units::ramp_reg(l.dec, key.1));
+        self.memo.start = Some((key, regs));
+        regs
+    }
+
+    /// Work out at the request (a bus task, not the control tick) what the
+    /// next move's start would otherwise work out in its tick: the ACC and
+    /// DEC registers it writes, their ramp capabilities, the streaming
+    /// limits' internal units, deceleration divisor, stop cap and MAX_SPEED
+    /// backstop (every one a
+    /// remembered pure function: nothing changes but how long the start's
+    /// tick takes; 8 axes starting in one tick is the control tick's worst).
+    pub(super) fn warm_start(&mut self) {
+        let (acc, dec) = self.start_regs();
+        let (cap_acc, cap_dec) = self.ramp_capabilities_of(acc, dec);
+        let mut l = units::clamp_to_chip(self.limits.requested, self.cfg.logical_shift);
+        l.acc = l.acc.min(cap_acc);
+        l.dec = l.dec.min(cap_dec);
+        self.profile.prepare_limits(l);
+        if self.limits.backstop.0 != l.max_speed || self.limits.backstop.1 == 0 {
+            let reg = units::backstop_reg(l.max_speed, self.cfg.logical_shift);
+            self.limits.backstop = (l.max_speed, reg);
+        }
+        let key = (l.dec, self.cfg.logical_shift, self.cfg.step);
+        let known = self.memo.stop_cap == Some(key)
+            || self.memo.other_stop_cap.is_some_and(|(k, _)| k == key);
+        if !known {
+            self.memo.other_stop_cap = Some((key, units::StopCap::new(key.0, key.1, key.2)));
+        }
+    }
+
     /// [`units::ramp_capability`] of the chip's ACC and DEC, worked out
     /// again only when they or the step mode change (every move start asks;
     /// the 128-bit arithmetic costs ~1 000 instructions).
     fn ramp_capabilities(&mut self) -> (u32, u32) {
-        let key = (self.limits.acc, self.limits.dec, self.cfg.logical_shift);
+        self.ramp_capabilities_of(self.limits.acc, self.limits.dec)
+    }
+
+    /// [`Axis::ramp_capabilities`] of ACC and DEC registers `acc`, `dec`.
+    fn ramp_capabilities_of(&mut self, acc: u32, dec: u32) -> (u32, u32) {
+        let key = (acc, dec, self.cfg.logical_shift);
         if let Some((k, caps)) = self.memo.ramps {
             if k == key {
                 return caps;
@@ -319,7 +368,12 @@ impl Axis {
         // Worked out again only when its inputs change (as above).
         let key = (l.dec, self.cfg.logical_shift, self.cfg.step);
         if self.memo.stop_cap != Some(key) {
-            self.stop_cap = units::StopCap::new(key.0, key.1, key.2);
+            let cap = match self.memo.other_stop_cap {
+                Some((k, cap)) if k == key => cap,
+                _ => units::StopCap::new(key.0, key.1, key.2),
+            };
+            self.memo.other_stop_cap = self.memo.stop_cap.map(|k| (k, self.stop_cap));
+            self.stop_cap = cap;
             self.memo.stop_cap = Some(key);
         }
     }

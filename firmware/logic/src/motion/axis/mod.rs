@@ -419,6 +419,13 @@ struct LimitMemo {
     ramps: Option<(RampKey, (u32, u32))>,
     /// (deceleration, logical shift, STEP_SEL) of `stop_cap`.
     stop_cap: Option<(u32, u8, StepSel)>,
+    /// Another stop cap and its inputs: the one before `stop_cap`, or the
+    /// next move's ([`Axis::warm_start`]); a start and its stop alternate
+    /// between two.
+    other_stop_cap: Option<((u32, u8, StepSel), units::StopCap)>,
+    /// (the requested limits, logical shift) and the ACC and DEC registers
+    /// a move's start writes for them.
+    start: Option<((Limits, u8), (u32, u32))>,
     /// A position target and its physical microsteps (the stop cap asks
     /// every tick; put back to (0, 0) when the logical step changes, the
     /// only input besides the target that can).
@@ -468,6 +475,8 @@ impl Axis {
             memo: LimitMemo {
                 ramps: None,
                 stop_cap: None,
+                other_stop_cap: None,
+                start: None,
                 target: (0, 0),
             },
             profile: Profile::new(cfg.tick_us, limits),

@@ -265,9 +265,7 @@ impl Axis {
         if self.write_before_leaving_rest(emit) {
             return;
         }
-        let l = units::clamp_to_chip(self.limits.requested, self.cfg.logical_shift);
-        let acc = units::ramp_reg(l.acc, self.cfg.logical_shift);
-        let dec = units::ramp_reg(l.dec, self.cfg.logical_shift);
+        let (acc, dec) = self.start_regs();
         // Only what differs (a batch with little room takes one a tick);
         // streaming starts at the tick after them.
         let mut wrote = false;
