@@ -607,31 +607,48 @@ impl Axis {
 
     /// The control tick's common cases, known before anything changes:
     /// the axis streams (at most at its max speed, so the profile's tick
-    /// keeps it there or below; its MAX_SPEED backstop in place) or rests
+    /// keeps it there or below; its MAX_SPEED backstop in place), rests
     /// quietly (idle, settled, no one-shot command, not an asleep chip to
-    /// put back in HiZ), and nothing else waits for a slot (no changed
-    /// register, no extension-space read). [`Axis::plan`] then sends the
-    /// read and, streaming, a Run, or the SoftStop that ends the move;
-    /// nothing else. [`Axis::plan_plain`] is that plan without the batch.
+    /// put back in HiZ) or waits for the chip to confirm a stop or a
+    /// landing, and nothing else waits for a slot (no changed register, no
+    /// extension-space read). [`Axis::plan`] then sends the read and,
+    /// streaming, a Run, or the SoftStop that ends the move; nothing else.
+    /// [`Axis::plan_plain`] is that plan without the batch.
     pub fn plain(&self) -> bool {
         if self.ext_read.is_some() || self.image.dirty() {
             return false;
         }
+        if matches!(self.state, AxisState::Streaming) {
+            let (profile_max, backstop) = self.limits.backstop;
+            let vmax = self.profile.internal_limits().0.unsigned_abs();
+            return self.profile.velocity_internal().unsigned_abs() <= vmax
+                && backstop != 0
+                && profile_max == self.profile.limits().max_speed
+                && self.limits.max_speed == backstop;
+        }
+        self.plain_waiting()
+    }
+
+    /// [`Axis::plain`] for an axis that does not stream: at rest, or
+    /// waiting for the chip to confirm a stop or a landing.
+    #[inline(never)]
+    fn plain_waiting(&self) -> bool {
         match self.state {
-            AxisState::Streaming => {
-                let (profile_max, backstop) = self.limits.backstop;
-                let vmax = self.profile.internal_limits().0.unsigned_abs();
-                self.profile.velocity_internal().unsigned_abs() <= vmax
-                    && backstop != 0
-                    && profile_max == self.profile.limits().max_speed
-                    && self.limits.max_speed == backstop
-            }
             AxisState::Idle => {
                 let fresh = self.rb.status_at > self.rb.sent_at;
                 self.profile.is_settled()
                     && self.idle_command.is_none()
                     && !(self.asleep && fresh && !self.rb.status.hiz())
             }
+            // Waiting for the chip to confirm its stop ([`Axis::plan_stopping`]
+            // sends nothing then) or its landing.
+            AxisState::Stopping => {
+                let may_stream = self.stop.after == AfterStop::Land && !self.asleep;
+                // (A new target during the end-of-move stop streams at once.)
+                let streams_on = may_stream && !self.profile.is_settled();
+                self.stop.pending.is_none() && !streams_on && !self.confirmed_stopped()
+            }
+            AxisState::Landing => self.profile.is_settled() && !self.confirmed_stopped(),
             _ => false,
         }
     }
