@@ -384,16 +384,6 @@ pub enum StreamRead {
     Param(Register),
 }
 
-/// The command after a streaming tick's read ([`Plan::stream_put`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[cfg_attr(feature = "defmt", derive(defmt::Format))]
-pub enum StreamCmd {
-    /// Run (direction, SPEED).
-    Run(Direction, u32),
-    /// SoftStop (the end of a move).
-    SoftStop,
-}
-
 impl StreamRead {
     /// The read as a command.
     pub const fn command(self) -> Command {
@@ -416,6 +406,9 @@ pub struct Plan {
     sync_window: u8,
     tx: Frames,
     reads: Vec<ReadSlot, { MAX_DEVICES * MAX_COMMANDS }>,
+    /// A plan written by [`Plan::stream_put`]: the longest command after a
+    /// read so far (bytes).
+    stream_len: u8,
 }
 
 impl Default for Plan {
@@ -426,6 +419,7 @@ impl Default for Plan {
             sync_window: 0,
             tx: [[0; MAX_DEVICES]; MAX_WINDOWS],
             reads: Vec::new(),
+            stream_len: 0,
         }
     }
 }
@@ -595,7 +589,8 @@ impl Plan {
     /// false, and the plan untouched, for any other `n`), then
     /// [`Plan::stream_put`] for every device, then [`Plan::stream_end`].
     /// The result is the plan [`Plan::schedule`] makes of a batch of a read
-    /// and at most one [`StreamCmd`] per device (a test compares the two).
+    /// and at most one command without a response per device (a test
+    /// compares the two).
     pub fn stream_begin(&mut self, n: usize) -> bool {
         if n == 0 || n > MAX_DEVICES {
             return false;
@@ -603,6 +598,7 @@ impl Plan {
         self.n = n as u8;
         self.windows = STREAM_WINDOWS as u8;
         self.sync_window = (STREAM_WINDOWS as u8).saturating_sub(1);
+        self.stream_len = 0;
         self.reads.clear();
         for row in self.tx.iter_mut().take(STREAM_WINDOWS) {
             *row = [0; MAX_DEVICES];
@@ -610,51 +606,47 @@ impl Plan {
         true
     }
 
-    /// Device `device`'s read (window 0, its reply from window 1) and
-    /// command: a Run in windows 1 to 4, a SoftStop in window 4 (where it
-    /// ends with the Runs; [`Plan::stream_end`] moves it if no device
-    /// runs), none (the device only reads), in a plan begun by
-    /// [`Plan::stream_begin`].
-    // Indices: device < n ≤ MAX_DEVICES (checked), rows 0..5 of MAX_WINDOWS.
+    /// Device `device`'s read (window 0, its reply from window 1) and the
+    /// command after it (none: the device only reads), in a plan begun by
+    /// [`Plan::stream_begin`]. The command, of 1 to 4 bytes, ends in window
+    /// 4 ([`Plan::stream_end`] moves every command up if none is 4 bytes
+    /// long, as the general layout does); a command with a response is
+    /// refused (`TooManyCommands`: this layout has no room for it).
+    // Indices: device < n ≤ MAX_DEVICES (checked); rows 1..5 of MAX_WINDOWS,
+    // from 5 − k for a command of k ≤ 4 bytes.
     #[allow(clippy::arithmetic_side_effects)]
     pub fn stream_put(
         &mut self,
         device: usize,
         read: StreamRead,
-        cmd: Option<StreamCmd>,
+        cmd: Option<Command>,
     ) -> Result<(), ScheduleError> {
         let n = usize::from(self.n);
         if device >= n {
             return Err(ScheduleError::NoSuchDevice(device.min(255) as u8));
         }
+        if cmd.is_some_and(|c| c.response_len() > 0) {
+            return Err(ScheduleError::TooManyCommands);
+        }
         let col = n - 1 - device;
-        let [r0, r1, r2, r3, r4, ..] = &mut self.tx;
-        if let Some(cell) = r0.get_mut(col) {
+        if let Some(cell) = self.tx.first_mut().and_then(|row| row.get_mut(col)) {
             *cell = match read {
                 StreamRead::Status => opcode::GET_STATUS,
                 StreamRead::Param(r) => opcode::GET_PARAM | r.address(),
             };
         }
-        match cmd {
-            Some(StreamCmd::Run(dir, speed)) => {
-                let s = speed.min(SPEED_MAX).to_be_bytes();
-                for (row, b) in [
-                    (r1, opcode::RUN | dir.bit()),
-                    (r2, s[1]),
-                    (r3, s[2]),
-                    (r4, s[3]),
-                ] {
-                    if let Some(cell) = row.get_mut(col) {
-                        *cell = b;
-                    }
+        if let Some(Command::Run(dir, speed)) = cmd {
+            self.put_run(col, dir, speed);
+        } else if let Some(c) = cmd {
+            let (bytes, k) = c.encode().raw();
+            let k = k.min(STREAM_WINDOWS - 1);
+            let rows = self.tx.iter_mut().skip(STREAM_WINDOWS - k).take(k);
+            for (row, b) in rows.zip(bytes) {
+                if let Some(cell) = row.get_mut(col) {
+                    *cell = b;
                 }
             }
-            Some(StreamCmd::SoftStop) => {
-                if let Some(cell) = r4.get_mut(col) {
-                    *cell = opcode::SOFT_STOP;
-                }
-            }
-            None => {}
+            self.stream_len = self.stream_len.max(k as u8);
         }
         let command = read.command();
         self.reads
@@ -668,24 +660,79 @@ impl Plan {
             .map_err(|_| ScheduleError::TooManyCommands)
     }
 
-    /// The end of a plan written by [`Plan::stream_put`]: if no device
-    /// got a Run, the general layout's shorter batch (the SoftStops in
-    /// window 1, the windows the reads' replies need).
-    pub fn stream_end(&mut self) {
+    /// [`Plan::stream_put`] of a read and a Run (the streaming tick's
+    /// every tick, its bytes written straight).
+    // Indices: device < n ≤ MAX_DEVICES (checked).
+    #[allow(clippy::arithmetic_side_effects)]
+    #[inline]
+    pub fn stream_put_run(
+        &mut self,
+        device: usize,
+        read: StreamRead,
+        dir: Direction,
+        speed: u32,
+    ) -> Result<(), ScheduleError> {
         let n = usize::from(self.n);
-        let [_, r1, _, _, r4, ..] = &mut self.tx;
-        let (Some(r1), Some(r4)) = (r1.get_mut(..n), r4.get_mut(..n)) else {
-            return;
-        };
-        // A Run's command byte is in window 1, and nothing else is.
-        if r1.iter().any(|b| *b != 0) {
-            return;
+        if device >= n {
+            return Err(ScheduleError::NoSuchDevice(device.min(255) as u8));
         }
-        let mut stops = false;
-        for (w1, w4) in r1.iter_mut().zip(r4.iter_mut()) {
-            if *w4 == opcode::SOFT_STOP {
-                *w1 = core::mem::take(w4);
-                stops = true;
+        let col = n - 1 - device;
+        if let Some(cell) = self.tx.first_mut().and_then(|row| row.get_mut(col)) {
+            *cell = match read {
+                StreamRead::Status => opcode::GET_STATUS,
+                StreamRead::Param(r) => opcode::GET_PARAM | r.address(),
+            };
+        }
+        self.put_run(col, dir, speed);
+        let command = read.command();
+        self.reads
+            .push(ReadSlot {
+                device: device as u8,
+                index: 0,
+                first_window: 1,
+                len: command.response_len(),
+                command,
+            })
+            .map_err(|_| ScheduleError::TooManyCommands)
+    }
+
+    /// A Run's bytes in column `col`, windows 1 to 4.
+    #[inline]
+    fn put_run(&mut self, col: usize, dir: Direction, speed: u32) {
+        let s = speed.min(SPEED_MAX).to_be_bytes();
+        let [_, r1, r2, r3, r4, ..] = &mut self.tx;
+        for (row, b) in [
+            (r1, opcode::RUN | dir.bit()),
+            (r2, s[1]),
+            (r3, s[2]),
+            (r4, s[3]),
+        ] {
+            if let Some(cell) = row.get_mut(col) {
+                *cell = b;
+            }
+        }
+        self.stream_len = (STREAM_WINDOWS as u8).saturating_sub(1);
+    }
+
+    /// The end of a plan written by [`Plan::stream_put`]: the commands
+    /// end in the window after the longest one (window 4 if one is 4
+    /// bytes long), and the plan is as long as that or the reads' replies.
+    // stream_len ≤ 4 (stream_put), rows 1..5.
+    #[allow(clippy::arithmetic_side_effects)]
+    pub fn stream_end(&mut self) {
+        let m = usize::from(self.stream_len).min(STREAM_WINDOWS - 1);
+        let shift = STREAM_WINDOWS - 1 - m;
+        if shift > 0 {
+            // Rows 1 + shift..5 move to 1..5 − shift; the rest is NOPs.
+            for r in 1..STREAM_WINDOWS {
+                let from = self
+                    .tx
+                    .get(r + shift)
+                    .copied()
+                    .filter(|_| r + shift < STREAM_WINDOWS);
+                if let Some(row) = self.tx.get_mut(r) {
+                    *row = from.unwrap_or([0; MAX_DEVICES]);
+                }
             }
         }
         let reads_end = self
@@ -694,7 +741,7 @@ impl Plan {
             .map(|r| r.len.saturating_add(1))
             .max()
             .unwrap_or(0);
-        let sync = if stops { 2 } else { 0 };
+        let sync = if m > 0 { m as u8 + 1 } else { 0 };
         self.windows = reads_end.max(sync);
         self.sync_window = sync.saturating_sub(1);
     }
@@ -1165,36 +1212,36 @@ mod tests {
             Command::GetParam(Register::Config),
             Command::GetParam(Register::AdcOut),
         ];
+        // After the read: commands of 4, 1, 1, 3 and 2 bytes, or none.
+        let after = |d: usize, pick: usize| match pick % 7 {
+            0 => Some(Command::Run(
+                Direction::from_bit(d as u8),
+                0x12_3456 + d as u32,
+            )),
+            1 => Some(Command::SoftStop),
+            2 => Some(Command::HardHiZ),
+            3 => Some(Command::GoTo(-1000 * d as i32)),
+            4 => Some(Command::SetParam(Register::MaxSpeed, 0x41 + d as u32)),
+            5 => Some(Command::SetParam(Register::KvalHold, 0x29)),
+            _ => None,
+        };
         for n in 1..=MAX_DEVICES {
-            for k in 0..reads.len() * 9 {
-                // Device d's command after its read: a Run, a SoftStop or
-                // none, in every mix (some with no Run at all).
-                let what = |d: usize| (k / reads.len() + d * (k % 3 + 1)) % 3;
-                let dir = |d: usize| {
-                    if d % 2 == 0 {
-                        Direction::Forward
-                    } else {
-                        Direction::Reverse
-                    }
-                };
+            for k in 0..reads.len() * 49 {
+                // Every mix: device d's pick from k's digits.
+                let pick = |d: usize| (k / reads.len() + d * (k % 5 + 1) + d * d) % 7;
                 let mut b = Batch::new(n);
                 for d in 0..n {
                     b.push(d, reads[(k + d) % reads.len()]).unwrap();
-                    match what(d) {
-                        0 => b
-                            .push(d, Command::Run(dir(d), 0x12_3456 + d as u32))
-                            .unwrap(),
-                        1 => b.push(d, Command::SoftStop).unwrap(),
-                        _ => {}
+                    if let Some(c) = after(d, pick(d)) {
+                        b.push(d, c).unwrap();
                     }
                 }
                 let fast = Plan::new(&b).unwrap();
                 let mut slow = Plan::default();
                 slow.schedule_general(&b).unwrap();
                 assert_eq!(fast, slow, "n = {n}, k = {k}");
-                let mut probe = Plan::default();
-                let all_run = (0..n).all(|d| what(d) == 0);
-                assert_eq!(probe.schedule_streaming(&b), all_run);
+                let all_run = (0..n).all(|d| pick(d) == 0);
+                assert_eq!(Plan::default().schedule_streaming(&b), all_run);
                 // Written a device at a time, without the batch: the same.
                 let mut put = Plan::default();
                 put.schedule(&Batch::all(3, Command::HardStop)).unwrap();
@@ -1204,12 +1251,12 @@ mod tests {
                         Command::GetParam(r) => StreamRead::Param(r),
                         _ => StreamRead::Status,
                     };
-                    let cmd = match what(d) {
-                        0 => Some(StreamCmd::Run(dir(d), 0x12_3456 + d as u32)),
-                        1 => Some(StreamCmd::SoftStop),
-                        _ => None,
-                    };
-                    put.stream_put(d, read, cmd).unwrap();
+                    match after(d, pick(d)) {
+                        Some(Command::Run(dir, spd)) if k % 2 == 0 => {
+                            put.stream_put_run(d, read, dir, spd).unwrap()
+                        }
+                        cmd => put.stream_put(d, read, cmd).unwrap(),
+                    }
                 }
                 put.stream_end();
                 assert_eq!(put.windows(), slow.windows(), "n = {n}, k = {k}");
@@ -1235,18 +1282,19 @@ mod tests {
     }
 
     #[test]
-    fn a_streaming_plan_refuses_a_device_past_its_chain() {
+    fn a_streaming_plan_refuses_a_device_past_its_chain_and_a_second_read() {
         let mut plan = Plan::default();
         assert!(!plan.stream_begin(0));
         assert!(!plan.stream_begin(MAX_DEVICES + 1));
         assert!(plan.stream_begin(2));
         assert_eq!(
-            plan.stream_put(
-                2,
-                StreamRead::Status,
-                Some(StreamCmd::Run(Direction::Forward, 1))
-            ),
+            plan.stream_put(2, StreamRead::Status, Some(Command::SoftStop)),
             Err(ScheduleError::NoSuchDevice(2))
+        );
+        // A second read has no room in this layout.
+        assert_eq!(
+            plan.stream_put(0, StreamRead::Status, Some(Command::GetStatus)),
+            Err(ScheduleError::TooManyCommands)
         );
         assert_eq!(plan.windows(), STREAM_WINDOWS);
     }

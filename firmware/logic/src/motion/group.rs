@@ -137,8 +137,10 @@ impl AxisGroup {
         let n = self.axes.len();
         if self.shortcut && self.axes.iter().all(Axis::plain) && plan.stream_begin(n) {
             for (d, axis) in self.axes.iter_mut().enumerate() {
-                let (read, cmd) = axis.plan_plain();
-                plan.stream_put(d, read, cmd)?;
+                // (Not plain after all, `Axis::plain` being wrong, the tick
+                // fails as a batch that does not fit, and every axis sets
+                // its chip up again.)
+                axis.plan_plain(plan, d)?;
             }
             plan.stream_end();
             self.plained = self.plained.wrapping_add(1);

@@ -442,8 +442,8 @@ mod fit_tests {
     fn a_batch_may_take_what_the_period_leaves() {
         // 8 chips at 5 kHz, overlapped: (180 − 5.8) µs / 29.6 µs per window.
         assert_eq!(fit(5000, 8).windows, 5);
-        // 4 chips at 5 kHz in a row: (180 − ~66) µs / 17.4 µs.
-        assert_eq!(fit(5000, 4).windows, 6);
+        // 4 chips at 5 kHz in a row: (180 − ~48) µs / 17.4 µs.
+        assert_eq!(fit(5000, 4).windows, 7);
         // 1 kHz: every batch the chain layer can lay out.
         assert_eq!(fit(1000, 8).windows, MAX_BATCH_WINDOWS);
         // A platform that does not time windows: no limit.
@@ -511,7 +511,7 @@ mod fit_tests {
             (r.hz, r.overlapped)
         });
         let (row, over) = ((5000, false), (5000, true));
-        assert_eq!(hz, [row, row, row, row, over, over, over, over]);
+        assert_eq!(hz, [row, row, row, row, row, over, over, over]);
     }
 
     #[test]
@@ -524,7 +524,7 @@ mod fit_tests {
         let half = ((5000, false), (5000, true));
         assert_eq!(
             hz,
-            [row, over, over, half.0, half.1, half.1, half.1, half.1]
+            [row, row, over, half.0, half.0, half.1, half.1, half.1]
         );
     }
 

@@ -75,7 +75,7 @@ use super::profile::{Limits, Mode, Profile};
 use super::units::{self, LIMIT_CAPS};
 pub use super::units::{logical_to_physical, physical_to_logical, MAX_LOGICAL_SHIFT};
 
-use crate::powerstep::chain::{Replies, StreamCmd, StreamRead, MAX_COMMANDS};
+use crate::powerstep::chain::{Plan, Replies, ScheduleError, StreamRead, MAX_COMMANDS};
 use crate::powerstep::commands::{Command, Direction, SPEED_MAX};
 use crate::powerstep::fields::{DriveMode, StepMode, StepSel};
 use crate::powerstep::registers::{sign_extend_22, wrap_22, Register};

@@ -606,57 +606,96 @@ impl Axis {
     }
 
     /// The control tick's common cases, known before anything changes:
-    /// the axis streams (at most at its max speed, so the profile's tick
-    /// keeps it there or below; its MAX_SPEED backstop in place), rests
-    /// quietly (idle, settled, no one-shot command, not an asleep chip to
-    /// put back in HiZ) or waits for the chip to confirm a stop or a
-    /// landing, and nothing else waits for a slot (no changed register, no
-    /// extension-space read). [`Axis::plan`] then sends the read and,
-    /// streaming, a Run, or the SoftStop that ends the move; nothing else.
-    /// [`Axis::plan_plain`] is that plan without the batch.
+    /// [`Axis::plan`] will send the read and at most one command without a
+    /// response after it (a Run, the SoftStop that ends a move, a GoTo that
+    /// lands, a one-shot stop, wake or HiZ), which every batch takes: no
+    /// changed register and no extension-space read waits, and the axis
+    /// streams with its MAX_SPEED backstop in place (at most at its max
+    /// speed, so the profile's tick keeps it there or below), starts a move
+    /// whose ramp registers are on the chip already, rests, or waits for a
+    /// stop or a landing. [`Axis::plan_plain`] is that plan without the
+    /// batch.
     pub fn plain(&self) -> bool {
         if self.ext_read.is_some() || self.image.dirty() {
             return false;
         }
         if matches!(self.state, AxisState::Streaming) {
-            let (profile_max, backstop) = self.limits.backstop;
-            let vmax = self.profile.internal_limits().0.unsigned_abs();
-            return self.profile.velocity_internal().unsigned_abs() <= vmax
-                && backstop != 0
-                && profile_max == self.profile.limits().max_speed
-                && self.limits.max_speed == backstop;
+            return self.backstop_stands(self.profile.limits().max_speed);
         }
         self.plain_waiting()
     }
 
-    /// [`Axis::plain`] for an axis that does not stream: at rest, or
-    /// waiting for the chip to confirm a stop or a landing.
+    /// The MAX_SPEED backstop needs no write this tick while the profile,
+    /// with max speed `max_speed`, stays at most at it ([`Axis::stream`]).
+    fn backstop_stands(&self, max_speed: u32) -> bool {
+        let (profile_max, backstop) = self.limits.backstop;
+        let vmax = self.profile.internal_limits().0.unsigned_abs();
+        self.profile.velocity_internal().unsigned_abs() <= vmax
+            && backstop != 0
+            && profile_max == max_speed
+            && self.limits.max_speed == backstop
+    }
+
+    /// [`Axis::plain`] for an axis that does not stream.
     #[inline(never)]
     fn plain_waiting(&self) -> bool {
+        let may_stream = self.stop.after == AfterStop::Land && !self.asleep;
         match self.state {
+            // [`Axis::plan_idle`]: one command at most.
+            AxisState::Idle if self.profile.is_settled() => true,
+            // [`Axis::start_from_rest`] with the ramp registers in place:
+            // the stream's first tick, at the limits refresh_limits gives
+            // it (the max speed is the requested one clamped to the chip).
             AxisState::Idle => {
-                let fresh = self.rb.status_at > self.rb.sent_at;
-                self.profile.is_settled()
-                    && self.idle_command.is_none()
-                    && !(self.asleep && fresh && !self.rb.status.hiz())
+                let regs = self
+                    .memo
+                    .start
+                    .filter(|(k, _)| *k == (self.limits.requested, self.cfg.logical_shift));
+                let in_place = regs.is_some_and(|(_, r)| r == (self.limits.acc, self.limits.dec));
+                let max = units::clamp_to_chip(self.limits.requested, self.cfg.logical_shift);
+                in_place
+                    && self.profile.velocity_internal() == 0
+                    && self.backstop_stands(max.max_speed)
             }
-            // Waiting for the chip to confirm its stop ([`Axis::plan_stopping`]
-            // sends nothing then) or its landing.
+            // [`Axis::plan_stopping`]: the pending stop, nothing while the
+            // chip stops, or the landing's GoTo (not with Set zero's
+            // ResetPos before it, not a new target streaming on).
             AxisState::Stopping => {
-                let may_stream = self.stop.after == AfterStop::Land && !self.asleep;
-                // (A new target during the end-of-move stop streams at once.)
                 let streams_on = may_stream && !self.profile.is_settled();
-                self.stop.pending.is_none() && !streams_on && !self.confirmed_stopped()
+                let resets = self.stop.zero && self.confirmed_stopped();
+                self.stop.pending.is_some() || (!streams_on && !resets)
             }
-            AxisState::Landing => self.profile.is_settled() && !self.confirmed_stopped(),
+            // Settled: nothing while the chip lands, or a GoTo again.
+            AxisState::Landing => self.profile.is_settled(),
             _ => false,
         }
     }
 
-    /// [`Axis::plan`] for an axis that is [`Axis::plain`], step for step:
-    /// the read and the command after it (none at rest) given back instead
-    /// of pushed into a batch (a test runs both side by side).
-    pub fn plan_plain(&mut self) -> (StreamRead, Option<StreamCmd>) {
+    /// [`Axis::plan`] for an axis that is [`Axis::plain`], written into
+    /// `plan` as device `device` ([`Plan::stream_put`]) instead of pushed
+    /// into a batch (which would take the read and the command after it).
+    /// An error if the plan was not plain after all (a bug: the caller
+    /// fails the tick safely) or `device` is not in the plan.
+    #[inline(always)]
+    pub fn plan_plain(&mut self, plan: &mut Plan, device: usize) -> Result<(), ScheduleError> {
+        if matches!(self.state, AxisState::Streaming) {
+            return match self.plan_streaming_plain() {
+                (read, Command::Run(dir, speed)) => plan.stream_put_run(device, read, dir, speed),
+                (read, cmd) => plan.stream_put(device, read, Some(cmd)),
+            };
+        }
+        match self.plan_captured() {
+            (Some(read), cmd) => plan.stream_put(device, read, cmd),
+            (None, _) => Err(ScheduleError::TooManyCommands),
+        }
+    }
+
+    /// [`Axis::plan`] of a streaming axis that is [`Axis::plain`], step for
+    /// step (the control tick's common case, written out: the read, then
+    /// [`Axis::stream`] without the backstop's write, which
+    /// [`Axis::backstop_stands`] rules out).
+    #[inline(always)]
+    fn plan_streaming_plain(&mut self) -> (StreamRead, Command) {
         self.tick = self.tick.wrapping_add(1);
         self.rate_tick();
         let read = if self.tick % 2 == 0 {
@@ -667,27 +706,23 @@ impl Axis {
         };
         self.rb.read = None;
         self.rb.expected_at_read = self.profile_physical();
-        let cmd = if matches!(self.state, AxisState::Streaming) {
-            let v0 = self.profile.velocity_internal();
-            self.profile.tick();
-            self.rate.steady = self.profile.velocity_internal() == v0;
-            if self.profile.is_settled() {
-                // The end of the move ([`Axis::stream`]).
-                self.stop.after = AfterStop::Land;
-                self.rb.sent_at = self.tick;
-                self.state = AxisState::Stopping;
-                Some(StreamCmd::SoftStop)
-            } else {
-                let (dir, mag) = self.run_speed();
-                self.rate.running = signed_speed(dir, mag);
-                Some(StreamCmd::Run(dir, mag))
-            }
+        let v0 = self.profile.velocity_internal();
+        self.profile.tick();
+        self.rate.steady = self.profile.velocity_internal() == v0;
+        let cmd = if self.profile.is_settled() {
+            // The end of the move ([`Axis::stream`]).
+            self.stop.after = AfterStop::Land;
+            self.rb.sent_at = self.tick;
+            self.state = AxisState::Stopping;
+            Command::SoftStop
         } else {
-            None
+            let (dir, mag) = self.run_speed();
+            self.rate.running = signed_speed(dir, mag);
+            Command::Run(dir, mag)
         };
         let sent = self.rb.in_flight.push_slot();
         sent.tick = self.tick;
-        sent.commands = cmd.is_some();
+        sent.commands = true;
         sent.read = Some(read);
         sent.expected = self.rb.expected_at_read;
         sent.expected_valid = true;
@@ -698,6 +733,29 @@ impl Axis {
             Read::Status => StreamRead::Status,
         };
         (read, cmd)
+    }
+
+    /// [`Axis::plan`] itself, its commands captured (every one taken, as
+    /// the batch takes a read and one more): the plain ticks that are not
+    /// a stream's.
+    #[inline(never)]
+    fn plan_captured(&mut self) -> (Option<StreamRead>, Option<Command>) {
+        let mut out: [Option<Command>; 2] = [None; 2];
+        let mut count = 0usize;
+        self.plan(|cmd| {
+            if let Some(slot) = out.get_mut(count) {
+                *slot = Some(cmd);
+            }
+            count = count.saturating_add(1);
+            true
+        });
+        let read = match out[0] {
+            Some(Command::GetParam(Register::AbsPos)) => Some(StreamRead::Param(Register::AbsPos)),
+            Some(Command::GetStatus) => Some(StreamRead::Status),
+            _ => None,
+        };
+        let shaped = count <= 2 && out[1].is_none_or(|c| c.response_len() == 0);
+        (read.filter(|_| shaped), out[1])
     }
 
     /// A `Run` (`spd`, the feed-forward `ff` plus the correction) toward
