@@ -522,10 +522,7 @@ mod fit_tests {
         });
         let (row, over) = ((10_000, false), (10_000, true));
         let half = ((5000, false), (5000, true));
-        assert_eq!(
-            hz,
-            [row, row, over, half.0, half.0, half.1, half.1, half.1]
-        );
+        assert_eq!(hz, [row, row, over, half.0, half.0, half.1, half.1, half.1]);
     }
 
     #[test]
