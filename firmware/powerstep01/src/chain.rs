@@ -621,20 +621,10 @@ impl Plan {
         read: StreamRead,
         cmd: Option<Command>,
     ) -> Result<(), ScheduleError> {
-        let n = usize::from(self.n);
-        if device >= n {
-            return Err(ScheduleError::NoSuchDevice(device.min(255) as u8));
-        }
         if cmd.is_some_and(|c| c.response_len() > 0) {
             return Err(ScheduleError::TooManyCommands);
         }
-        let col = n - 1 - device;
-        if let Some(cell) = self.tx.first_mut().and_then(|row| row.get_mut(col)) {
-            *cell = match read {
-                StreamRead::Status => opcode::GET_STATUS,
-                StreamRead::Param(r) => opcode::GET_PARAM | r.address(),
-            };
-        }
+        let col = self.put_read(device, read)?;
         if let Some(Command::Run(dir, speed)) = cmd {
             self.put_run(col, dir, speed);
         } else if let Some(c) = cmd {
@@ -648,22 +638,11 @@ impl Plan {
             }
             self.stream_len = self.stream_len.max(k as u8);
         }
-        let command = read.command();
-        self.reads
-            .push(ReadSlot {
-                device: device as u8,
-                index: 0,
-                first_window: 1,
-                len: command.response_len(),
-                command,
-            })
-            .map_err(|_| ScheduleError::TooManyCommands)
+        Ok(())
     }
 
     /// [`Plan::stream_put`] of a read and a Run (the streaming tick's
     /// every tick, its bytes written straight).
-    // Indices: device < n ≤ MAX_DEVICES (checked).
-    #[allow(clippy::arithmetic_side_effects)]
     #[inline]
     pub fn stream_put_run(
         &mut self,
@@ -672,6 +651,17 @@ impl Plan {
         dir: Direction,
         speed: u32,
     ) -> Result<(), ScheduleError> {
+        let col = self.put_read(device, read)?;
+        self.put_run(col, dir, speed);
+        Ok(())
+    }
+
+    /// Device `device`'s read in window 0 of a streaming plan (its reply
+    /// from window 1); its column.
+    // Indices: device < n ≤ MAX_DEVICES (checked).
+    #[allow(clippy::arithmetic_side_effects)]
+    #[inline]
+    fn put_read(&mut self, device: usize, read: StreamRead) -> Result<usize, ScheduleError> {
         let n = usize::from(self.n);
         if device >= n {
             return Err(ScheduleError::NoSuchDevice(device.min(255) as u8));
@@ -683,7 +673,6 @@ impl Plan {
                 StreamRead::Param(r) => opcode::GET_PARAM | r.address(),
             };
         }
-        self.put_run(col, dir, speed);
         let command = read.command();
         self.reads
             .push(ReadSlot {
@@ -693,7 +682,8 @@ impl Plan {
                 len: command.response_len(),
                 command,
             })
-            .map_err(|_| ScheduleError::TooManyCommands)
+            .map_err(|_| ScheduleError::TooManyCommands)?;
+        Ok(col)
     }
 
     /// A Run's bytes in column `col`, windows 1 to 4.

@@ -46,7 +46,16 @@ impl Axis {
 
     /// Emit this tick's commands for the axis's chip (read-back first).
     /// `emit` returns false when the batch is full; the axis then retries next tick.
+    #[inline]
     pub fn plan(&mut self, mut emit: impl FnMut(Command) -> bool) {
+        self.plan_with(&mut emit);
+    }
+
+    /// [`Axis::plan`], one copy for every caller: the batch's loop and the
+    /// plain tick's capture share it in SRAM, where the tick's code runs
+    /// (SRAM the stack needs too).
+    #[inline(never)]
+    fn plan_with(&mut self, emit: &mut dyn FnMut(Command) -> bool) {
         let mut used = 0usize;
         let mut leaves_hiz = false;
         let mut counted = |cmd: Command| {
@@ -62,7 +71,7 @@ impl Axis {
         // (Almost every tick nothing is dirty and nothing is asked.)
         let spare_work = self.image.dirty() || self.ext_read.is_some();
         if spare_work && self.is_configured() {
-            used = self.plan_spare_slots(used, leaves_hiz, &mut emit);
+            used = self.plan_spare_slots(used, leaves_hiz, emit);
         }
         let read = self.rb.read.take();
         self.rb.in_flight.push(Sent {
@@ -82,7 +91,7 @@ impl Axis {
         &mut self,
         mut used: usize,
         leaves_hiz: bool,
-        emit: &mut impl FnMut(Command) -> bool,
+        emit: &mut dyn FnMut(Command) -> bool,
     ) -> usize {
         // Spare slots carry configuration registers that changed, each only
         // when the chip takes it ([`Axis::chip_takes`]): nothing starts the
@@ -676,7 +685,6 @@ impl Axis {
     /// into a batch (which would take the read and the command after it).
     /// An error if the plan was not plain after all (a bug: the caller
     /// fails the tick safely) or `device` is not in the plan.
-    #[inline(always)]
     pub fn plan_plain(&mut self, plan: &mut Plan, device: usize) -> Result<(), ScheduleError> {
         if matches!(self.state, AxisState::Streaming) {
             return match self.plan_streaming_plain() {
@@ -694,7 +702,6 @@ impl Axis {
     /// step (the control tick's common case, written out: the read, then
     /// [`Axis::stream`] without the backstop's write, which
     /// [`Axis::backstop_stands`] rules out).
-    #[inline(always)]
     fn plan_streaming_plain(&mut self) -> (StreamRead, Command) {
         self.tick = self.tick.wrapping_add(1);
         self.rate_tick();
