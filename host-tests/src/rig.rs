@@ -6,7 +6,19 @@ use crate::clock::{SimClock, SimControl};
 use bridge_logic::motion::{Axis, AxisConfig, AxisGroup, AxisState, Limits, TickReport};
 use bridge_logic::powerstep::chain::Chain;
 use bridge_logic::powerstep::registers::sign_extend_22;
+use bridge_logic::powerstep::{DriveMode, StepSel};
 use stepbridge_sim::SimChain;
+
+/// An axis's configuration at the build's control tick
+/// (`STEPBRIDGE_TICK_HZ`; CI runs the motion suites at 1, 2 and 5 kHz).
+pub fn config(logical_shift: u8, step: StepSel, drive: DriveMode) -> AxisConfig {
+    AxisConfig {
+        tick_us: bridge_logic::rate::TICK_US,
+        logical_shift,
+        step,
+        drive,
+    }
+}
 
 /// An axis group and its chain as one simulated control loop.
 pub struct GroupOnChain<'a> {

@@ -8,22 +8,12 @@ use bridge_logic::motion::{AxisConfig, AxisFault, Limits};
 use bridge_logic::powerstep::registers::{sign_extend_22, wrap_22};
 use bridge_logic::powerstep::{DriveMode, StepSel};
 use host_tests::clock::{SimClock, SimControl};
-use host_tests::rig::Rig;
+use host_tests::rig::{config as cfg, Rig};
 use host_tests::rng::Rng;
 use stepbridge_sim::Fault;
 
 /// The build setting `STEPBRIDGE_TICK_HZ` (CI runs this file at 1, 2 and 5 kHz).
 const TICK_US: u32 = bridge_logic::rate::TICK_US;
-
-/// xorshift64*: deterministic, seedable, no dependency.
-fn cfg(logical_shift: u8, step: StepSel, drive: DriveMode) -> AxisConfig {
-    AxisConfig {
-        tick_us: TICK_US,
-        logical_shift,
-        step,
-        drive,
-    }
-}
 
 /// Mixed step modes: logical = physical, logical coarser, logical finer
 /// (1/256 on a chip at 1/16, current mode), full steps on 1/128.

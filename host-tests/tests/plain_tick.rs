@@ -4,22 +4,13 @@
 //! there: two rigs run the same random commands, one with the shortcut
 //! off, and every window, every chip and every axis's state stay the same.
 
-use bridge_logic::motion::{AxisConfig, Limits};
+use bridge_logic::motion::Limits;
 use bridge_logic::powerstep::registers::Register;
 use bridge_logic::powerstep::{DriveMode, StepSel};
-use host_tests::rig::Rig;
+use host_tests::rig::{config as cfg, Rig};
 use host_tests::rng::Rng;
 
 const TICK_US: u32 = bridge_logic::rate::TICK_US;
-
-fn cfg(logical_shift: u8, step: StepSel, drive: DriveMode) -> AxisConfig {
-    AxisConfig {
-        tick_us: TICK_US,
-        logical_shift,
-        step,
-        drive,
-    }
-}
 
 fn limits(v: u32, a: u32, d: u32) -> Limits {
     Limits {

@@ -209,13 +209,6 @@ impl AxisGroup {
         Ok(())
     }
 
-    /// Second half of a tick: every axis takes its replies.
-    pub fn finish(&mut self, replies: &Replies) {
-        for (d, axis) in self.axes.iter_mut().enumerate() {
-            axis.absorb(replies, d);
-        }
-    }
-
     /// One control tick on `chain` (whose length must equal the number of axes).
     ///
     /// [`AxisGroup::tick_begin`], every window through the blocking bus,

@@ -281,14 +281,15 @@ impl InFlight {
         len: 0,
     };
 
-    /// A new plan's record (a third drops the oldest: a tick that planned
-    /// without ending its batch, whose replies never come).
-    #[inline]
+    /// [`InFlight::push_slot`] filled with `s` (the tests' records).
+    #[cfg(test)]
     fn push(&mut self, s: Sent) {
         *self.push_slot() = s;
     }
 
-    /// [`InFlight::push`]: the new record's slot, to be filled in place.
+    /// A new plan's record, its slot to be filled in place (a third drops
+    /// the oldest: a tick that planned without ending its batch, whose
+    /// replies never come).
     #[inline]
     fn push_slot(&mut self) -> &mut Sent {
         if self.len == 2 {

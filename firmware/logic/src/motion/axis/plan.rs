@@ -74,15 +74,31 @@ impl Axis {
             used = self.plan_spare_slots(used, leaves_hiz, emit);
         }
         let read = self.rb.read.take();
-        self.rb.in_flight.push(Sent {
-            tick: self.tick,
-            commands: used > usize::from(read.is_some()),
-            read,
-            expected: self.rb.expected_at_read,
-            expected_valid: true,
-            commanded: self.rate.commanded,
-            epoch: self.rate.epoch,
-        });
+        self.record_batch(read, used > usize::from(read.is_some()));
+    }
+
+    /// The record of the batch this plan goes out in ([`InFlight`]): what
+    /// it reads, whether it carries more, and what the plan knew.
+    #[inline]
+    fn record_batch(&mut self, read: Option<Read>, commands: bool) {
+        let sent = self.rb.in_flight.push_slot();
+        sent.tick = self.tick;
+        sent.commands = commands;
+        sent.read = read;
+        sent.expected = self.rb.expected_at_read;
+        sent.expected_valid = true;
+        sent.commanded = self.rate.commanded;
+        sent.epoch = self.rate.epoch;
+    }
+
+    /// The regular read of this tick: ABS_POS on even ticks, STATUS on odd
+    /// ones.
+    fn regular_read(&self) -> Read {
+        if self.tick % 2 == 0 {
+            Read::Position
+        } else {
+            Read::Status
+        }
     }
 
     /// The slots `used` left: changed configuration registers, then an
@@ -236,11 +252,7 @@ impl Axis {
     /// The read-back, first in every tick: ABS_POS on even ticks, STATUS on
     /// odd ones.
     pub(super) fn plan_read(&mut self, emit: &mut impl FnMut(Command) -> bool) {
-        let read = if self.tick % 2 == 0 {
-            Read::Position
-        } else {
-            Read::Status
-        };
+        let read = self.regular_read();
         // An extension-space read that found no room beside the regular
         // read goes in a position read's place (never a STATUS read's: it
         // sees faults and switches); a read of ABS_POS is both.
@@ -549,10 +561,7 @@ impl Axis {
     }
 
     pub(super) fn stream(&mut self, emit: &mut impl FnMut(Command) -> bool) {
-        let v0 = self.profile.velocity_internal();
-        let before = v0.unsigned_abs();
-        self.profile.tick();
-        self.rate.steady = self.profile.velocity_internal() == v0;
+        let before = self.profile_step().unsigned_abs();
         // MAX_SPEED backstop: raised at once when the profile needs more; lowered
         // to the new max speed only once the profile has slowed down to it (a
         // lower max speed mid-move is reached with the profile's DEC, not the chip's).
@@ -574,20 +583,36 @@ impl Axis {
             self.limits.max_speed = need;
         }
         if self.profile.is_settled() {
-            self.stop.after = AfterStop::Land;
-            if emit(Command::SoftStop) {
-                self.rb.sent_at = self.tick;
-                self.state = AxisState::Stopping;
-            } else {
-                self.stop.pending = Some(Command::SoftStop);
-                self.state = AxisState::Stopping;
-            }
+            let sent = emit(Command::SoftStop);
+            self.end_move(sent);
             return;
         }
         let (dir, mag) = self.run_speed();
         if emit(Command::Run(dir, mag)) {
             self.rate.running = signed_speed(dir, mag);
         }
+    }
+
+    /// The profile's tick of a streaming axis; the speed before it.
+    #[inline(always)]
+    fn profile_step(&mut self) -> i64 {
+        let v0 = self.profile.velocity_internal();
+        self.profile.tick();
+        self.rate.steady = self.profile.velocity_internal() == v0;
+        v0
+    }
+
+    /// The profile has settled on the target: the chip stops (its SoftStop
+    /// `sent` in this batch, or pending for the next), then lands.
+    #[inline(always)]
+    fn end_move(&mut self, sent: bool) {
+        self.stop.after = AfterStop::Land;
+        if sent {
+            self.rb.sent_at = self.tick;
+        } else {
+            self.stop.pending = Some(Command::SoftStop);
+        }
+        self.state = AxisState::Stopping;
     }
 
     /// This tick's Run: the profile's speed (feed-forward) plus the
@@ -705,36 +730,22 @@ impl Axis {
     fn plan_streaming_plain(&mut self) -> (StreamRead, Command) {
         self.tick = self.tick.wrapping_add(1);
         self.rate_tick();
-        let read = if self.tick % 2 == 0 {
-            Read::Position
-        } else {
+        let read = self.regular_read();
+        if read == Read::Status {
             self.image.status_requested();
-            Read::Status
-        };
+        }
         self.rb.read = None;
         self.rb.expected_at_read = self.profile_physical();
-        let v0 = self.profile.velocity_internal();
-        self.profile.tick();
-        self.rate.steady = self.profile.velocity_internal() == v0;
+        self.profile_step();
         let cmd = if self.profile.is_settled() {
-            // The end of the move ([`Axis::stream`]).
-            self.stop.after = AfterStop::Land;
-            self.rb.sent_at = self.tick;
-            self.state = AxisState::Stopping;
+            self.end_move(true);
             Command::SoftStop
         } else {
             let (dir, mag) = self.run_speed();
             self.rate.running = signed_speed(dir, mag);
             Command::Run(dir, mag)
         };
-        let sent = self.rb.in_flight.push_slot();
-        sent.tick = self.tick;
-        sent.commands = true;
-        sent.read = Some(read);
-        sent.expected = self.rb.expected_at_read;
-        sent.expected_valid = true;
-        sent.commanded = self.rate.commanded;
-        sent.epoch = self.rate.epoch;
+        self.record_batch(Some(read), true);
         let read = match read {
             Read::Position => StreamRead::Param(Register::AbsPos),
             Read::Status => StreamRead::Status,
