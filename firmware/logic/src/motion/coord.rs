@@ -83,6 +83,10 @@ pub struct Line {
     n: usize,
     start: [i64; MAX_AXES],
     delta: [i64; MAX_AXES],
+    /// Where each axis is beyond `start`, 2⁻³³ steps (|offset| ≤ ½ step:
+    /// an axis held between two of its steps), shrunk to 0 along the line
+    /// ([`Line::with_offsets`]).
+    offset: [i64; MAX_AXES],
     /// `L`, steps (0: nothing moves).
     length: i64,
     path: Profile,
@@ -262,9 +266,29 @@ impl Line {
             n,
             start: s,
             delta,
+            offset: [0; MAX_AXES],
             length,
             path: profile,
         })
+    }
+
+    /// The same line from axes that are `offsets` (2⁻³³ steps, at most
+    /// half a step either way, else [`CoordError::TooLong`]) beyond their
+    /// `start`: axis `k` runs from `startₖ + offsetₖ` to its target, at
+    /// `startₖ + offsetₖ · (1 − s/L) + dₖ · s/L` (an axis held between two
+    /// of its steps starts where it is, without a jump, and lands exactly).
+    pub fn with_offsets(mut self, offsets: &[i64]) -> Result<Line, CoordError> {
+        if offsets.len() != self.n {
+            return Err(CoordError::LengthMismatch);
+        }
+        const HALF: i64 = 1 << (POS_FRAC - 1);
+        for (o, f) in self.offset.iter_mut().zip(offsets) {
+            if !(-HALF..=HALF).contains(f) {
+                return Err(CoordError::TooLong);
+            }
+            *o = *f;
+        }
+        Ok(self)
     }
 
     /// Axes in the move.
@@ -298,11 +322,57 @@ impl Line {
     #[allow(clippy::arithmetic_side_effects)]
     pub fn position_fine(&self, k: usize) -> Option<i128> {
         let (a, d) = (self.start.get(..self.n)?.get(k)?, self.delta.get(k)?);
-        let a = i128::from(*a) << POS_FRAC;
+        let o = i128::from(self.offset.get(k).copied().unwrap_or(0));
+        let a = (i128::from(*a) << POS_FRAC) + o;
+        let s = self.path.position_fine();
+        // |o| ≤ 2³², so o · s fits as d · s does.
+        let o_share = if o == 0 || self.length == 0 {
+            0
+        } else {
+            (o * s) / (i128::from(self.length) << POS_FRAC)
+        };
+        Some(a + self.share(*d, s) - o_share)
+    }
+
+    /// Axis `k`'s velocity, 2⁻³² steps per tick: its share `dₖ / L` of the
+    /// path's, rounded toward zero. `None` past the last axis.
+    pub fn velocity_internal(&self, k: usize) -> Option<i64> {
+        let d = self.start.get(..self.n).and(self.delta.get(k))?;
+        let v = self.share(*d, i128::from(self.path.velocity_internal()));
+        // |d / L| ≤ 1: no larger than the path's velocity, an i64.
+        i64::try_from(v).ok()
+    }
+
+    /// `d · x / L`, rounded toward zero (0 for a line of no length): by the
+    /// 32-bit divide where `L` fits it (`L ≤ 2³²`, so but for `L = 2³²`).
+    // |d| ≤ 2³², |x| ≤ 2⁶⁶: the product fits i128.
+    #[allow(clippy::arithmetic_side_effects)]
+    fn share(&self, d: i64, x: i128) -> i128 {
         if self.length == 0 {
-            return Some(a);
+            return 0;
         }
-        Some(a + i128::from(*d) * self.path.position_fine() / i128::from(self.length))
+        let p = i128::from(d) * x;
+        let m = match u32::try_from(self.length) {
+            Ok(l) => super::divisor::div_u128_by_u32(p.unsigned_abs(), l) as i128,
+            Err(_) => p.unsigned_abs() as i128 / i128::from(self.length),
+        };
+        if p < 0 {
+            -m
+        } else {
+            m
+        }
+    }
+
+    /// Decelerate along the line with the path's deceleration to a stop on
+    /// the first whole path step at or beyond the braking point (every
+    /// axis between two of its steps, on the line).
+    pub fn stop(&mut self) {
+        self.path.soft_stop();
+    }
+
+    /// The path's velocity, 2⁻³² steps of the farthest axis per tick.
+    pub fn path_velocity_internal(&self) -> i64 {
+        self.path.velocity_internal()
     }
 
     /// Axis `k`'s position, nearest step (halves away from zero).

@@ -4,6 +4,8 @@
 use heapless::Vec;
 
 use super::axis::Axis;
+use super::coordinated::{CoordRun, StartError};
+use super::profile::Limits;
 use crate::powerstep::chain::{
     Batch, Chain, ChainBus, ChainError, Frames, Plan, Replies, ScheduleError, MAX_DEVICES,
     MAX_WINDOWS,
@@ -33,6 +35,8 @@ pub struct AxisGroup {
     /// (device d's 3 bytes, MSB first), not `replies`.
     raw_decoded: bool,
     raw: [u32; MAX_DEVICES],
+    /// The coordinated move (running, or the last one).
+    coord: CoordRun,
 }
 
 impl Default for AxisGroup {
@@ -69,6 +73,7 @@ impl AxisGroup {
             plain: [false; 2],
             raw_decoded: false,
             raw: [0; MAX_DEVICES],
+            coord: CoordRun::new(),
         }
     }
 
@@ -126,8 +131,32 @@ impl AxisGroup {
         pick(&self.plans, self.second == making)
     }
 
+    /// Start a coordinated move ([`CoordRun::start`]) of the axes
+    /// `members` to `targets`, at most at the `path` limits.
+    pub fn coord_start(
+        &mut self,
+        members: &[usize],
+        targets: &[i64],
+        path: Limits,
+    ) -> Result<(), StartError> {
+        self.coord.start(&mut self.axes, members, targets, path)
+    }
+
+    /// Stop the coordinated move along its line ([`CoordRun::stop`]).
+    pub fn coord_stop(&mut self) {
+        self.coord.stop(&mut self.axes);
+    }
+
+    /// The coordinated move running, or the last one.
+    pub fn coord(&self) -> &CoordRun {
+        &self.coord
+    }
+
     /// First half of a tick: every axis plans its commands; one plan for the chain.
     pub fn prepare(&mut self) -> Result<&Plan, ScheduleError> {
+        if self.coord.is_active() {
+            self.coord.step(&mut self.axes);
+        }
         let [a, b] = [&mut self.plans.0, &mut self.plans.1];
         let plan = if self.second { b } else { a };
         let plain_slot = usize::from(self.second);

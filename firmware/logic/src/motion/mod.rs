@@ -6,6 +6,7 @@
 
 pub mod axis;
 pub mod coord;
+pub mod coordinated;
 pub mod divisor;
 pub mod group;
 pub mod homing;
@@ -13,6 +14,7 @@ pub mod profile;
 pub mod units;
 
 pub use axis::{Axis, AxisConfig, AxisFault, AxisState, ChipImage};
+pub use coordinated::{AbortReason, CoordRun, CoordState, StartError};
 pub use group::{AxisGroup, TickReport};
 pub use homing::{HomingError, HomingParams, HomingState};
 pub use profile::{Limits, Mode, Profile};

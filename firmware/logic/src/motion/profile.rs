@@ -123,6 +123,10 @@ pub struct Profile {
     /// ([`Profile::tick`]); anything that changes the mode, the limits or
     /// the position sets it to 0.
     coast: u32,
+    /// The next tick's position (2⁻³³ steps) and velocity, given from
+    /// outside ([`Profile::lead`]: a coordinated move's line), taken by
+    /// that tick instead of the profile's own step.
+    led: Option<(i128, i64)>,
 }
 
 /// Steps/s → 2⁻³² steps/tick, rounded down (never above the limit).
@@ -246,6 +250,7 @@ impl Profile {
             conv: [None, None],
             prev_div: Divisor::new(1),
             coast: 0,
+            led: None,
         };
         p.set_limits(limits);
         p
@@ -381,6 +386,7 @@ impl Profile {
     /// Move to `target` steps (position mode), from whatever the axis is doing.
     pub fn move_to(&mut self, target: i64) {
         self.coast = 0;
+        self.led = None;
         self.mode = Mode::Position(target);
     }
 
@@ -389,6 +395,7 @@ impl Profile {
     pub fn run_at(&mut self, steps_per_s: i32) {
         let v = speed_to_internal(steps_per_s.unsigned_abs(), self.tick_us);
         self.coast = 0;
+        self.led = None;
         self.mode = Mode::Velocity(if steps_per_s < 0 { -v } else { v });
     }
 
@@ -402,6 +409,7 @@ impl Profile {
     /// the braking point.
     pub fn soft_stop(&mut self) {
         self.coast = 0;
+        self.led = None;
         if self.vel == 0 {
             self.mode = Mode::Position(self.position_toward(self.pos, 0));
             return;
@@ -425,6 +433,7 @@ impl Profile {
     /// [`Profile::set_position`]): for an axis held between two whole steps.
     pub fn set_position_fine(&mut self, fine: i128) {
         self.coast = 0;
+        self.led = None;
         self.vel = 0;
         self.pos = fine;
         self.mode = Mode::Hold;
@@ -436,6 +445,7 @@ impl Profile {
     /// in the new coordinates.
     pub fn rebase_fine(&mut self, fine: i128) {
         self.coast = 0;
+        self.led = None;
         self.vel = 0;
         self.pos = fine;
         self.set_dec(self.dec_limit);
@@ -503,10 +513,35 @@ impl Profile {
         self.tick_full()
     }
 
+    /// Lead the next tick: it ends at `pos` (2⁻³³ steps) with velocity
+    /// `vel` (2⁻³² steps/tick) instead of the profile's own step (a
+    /// coordinated move's line sets every axis of its group this way, every
+    /// tick). The mode stays what it is: a tick without a lead steps on its
+    /// own toward it, within the limits, from where the last lead left it.
+    /// The leader keeps the limits; a lead given twice before a tick
+    /// replaces the first.
+    pub fn lead(&mut self, pos: i128, vel: i64) {
+        self.coast = 0;
+        self.led = Some((pos, vel));
+    }
+
+    /// A lead given and not yet taken by a tick.
+    pub fn is_led(&self) -> bool {
+        self.led.is_some()
+    }
+
     /// [`Profile::tick`] worked out in full (what every tick computes
     /// outside a cruise; the tests compare the two).
     #[inline(never)]
     pub(crate) fn tick_full(&mut self) -> i64 {
+        if let Some((pos, vel)) = self.led.take() {
+            self.pos = pos;
+            self.vel = vel;
+            if vel == 0 {
+                self.set_dec(self.dec_limit);
+            }
+            return vel;
+        }
         let next = match self.mode {
             Mode::Hold => 0,
             Mode::Velocity(target) => self.velocity_step(target),

@@ -201,8 +201,14 @@ impl Axis {
         self.refresh_limits();
     }
     /// Decelerate to a stop with the profile's deceleration. An axis at rest,
-    /// or already stopping at once, has nothing to do.
+    /// or already stopping at once, has nothing to do. A member of a
+    /// coordinated move asks its group, which stops every member along the
+    /// line.
     pub fn soft_stop(&mut self) {
+        if self.soft_stop_for_group() {
+            // A coordinated move's member: the group stops along its line.
+            return;
+        }
         if matches!(self.state, AxisState::Homing) {
             self.end_homing(HomingError::Aborted);
             self.stop_then(AfterStop::Hold, Command::SoftStop);
@@ -319,11 +325,7 @@ impl Axis {
     /// remembered pure function: nothing changes but how long the start's
     /// tick takes; 8 axes starting in one tick is the control tick's worst).
     pub(super) fn warm_start(&mut self) {
-        let (acc, dec) = self.start_regs();
-        let (cap_acc, cap_dec) = self.ramp_capabilities_of(acc, dec);
-        let mut l = units::clamp_to_chip(self.limits.requested, self.cfg.logical_shift);
-        l.acc = l.acc.min(cap_acc);
-        l.dec = l.dec.min(cap_dec);
+        let l = self.streaming_limits();
         self.profile.prepare_limits(l);
         if self.limits.backstop.0 != l.max_speed || self.limits.backstop.1 == 0 {
             let reg = units::backstop_reg(l.max_speed, self.cfg.logical_shift);
@@ -345,7 +347,7 @@ impl Axis {
     }
 
     /// [`Axis::ramp_capabilities`] of ACC and DEC registers `acc`, `dec`.
-    fn ramp_capabilities_of(&mut self, acc: u32, dec: u32) -> (u32, u32) {
+    pub(super) fn ramp_capabilities_of(&mut self, acc: u32, dec: u32) -> (u32, u32) {
         let key = (acc, dec, self.cfg.logical_shift);
         if let Some((k, caps)) = self.memo.ramps {
             if k == key {

@@ -410,6 +410,8 @@ pub struct Axis {
     ext_read: Option<RegRead>,
     /// The chip's oscillator against the control tick (see [`ClockRate`]).
     rate: ClockRate,
+    /// A member of a coordinated move ([`Axis::follow`]).
+    lead: Option<lead::LeadMark>,
 }
 
 /// What [`Axis::refresh_limits`] last worked out, by its inputs: both are
@@ -522,6 +524,7 @@ impl Axis {
             absolute_read: false,
             ext_read: None,
             rate: ClockRate::NEW,
+            lead: None,
         };
         axis.refresh_limits();
         axis
@@ -638,6 +641,7 @@ impl Axis {
 
 mod commands;
 mod image;
+mod lead;
 mod plan;
 mod rate;
 mod readback;

@@ -1,0 +1,446 @@
+//! A coordinated move running: one [`Line`] led tick by tick through the
+//! axes of a group ([`CoordRun`], kept by [`crate::motion::AxisGroup`]).
+//!
+//! # What it guarantees
+//!
+//! * **One start, one arrival.** Every member starts as any move from rest
+//!   (its chip's ramps are written first), and the line waits, every
+//!   member held where it is, until all of them stream: then the shared
+//!   profile runs and every member's profile is set to its point of the
+//!   line each tick ([`Axis::lead`]), so all of them start in the same tick
+//!   and their profiles reach their targets in the same tick; each lands
+//!   there exactly as a single move does (SoftStop, GoTo).
+//! * **Within its limits.** The line's limits are each member's streaming
+//!   limits scaled by its share ([`Line`]): no member is led faster, or
+//!   with more acceleration or deceleration, than it could move alone.
+//! * **Stops keep the line.** A stop of the group, or a soft stop asked of
+//!   any member (a bus's SoftStop, the communication watchdog's soft stop),
+//!   brakes the shared profile with the line's deceleration: every member
+//!   stops on the line, and holds where its chip stops. A member that
+//!   leaves the line at once — a Stop, an end switch, sleep, Set zero, a
+//!   step-mode change, a fault, a chip reset, a chain error — stops every
+//!   other member at once too (HardStop: as close to the line as the chips
+//!   allow), and the group reports which member and why. After any of
+//!   them every member rests until a new motion command.
+
+use super::axis::{Axis, AxisFault};
+use super::coord::{CoordError, Line, MAX_AXES};
+use super::profile::{round_fine, Limits, POS_FRAC};
+
+/// What a coordinated move is doing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum CoordState {
+    /// None started since boot.
+    Idle,
+    /// Members writing their ramps; the line waits for all of them.
+    Starting,
+    /// The line runs.
+    Running,
+    /// Braking along the line (a stop).
+    Stopping,
+    /// The line is over: members landing on their targets, or stopping.
+    Settling,
+    /// Every member landed on its target.
+    Done,
+    /// Stopped before the targets ([`CoordRun::abort`] says why).
+    Aborted,
+}
+
+/// Why a coordinated move ended before its targets.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum AbortReason {
+    /// The group's stop, or a soft stop asked of a member.
+    Stopped,
+    /// A member stopped at once on its own (a Stop, an end switch, sleep,
+    /// Set zero, a step-mode change).
+    MemberStopped,
+    /// A member's chip failed: its fault.
+    Fault(AxisFault),
+}
+
+/// Why a coordinated move was not started.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum StartError {
+    /// A move is running: stop it first.
+    Busy,
+    /// A member named twice or past the chain.
+    BadAxis,
+    /// This member is not at rest, asleep, homing, or off for a fault.
+    NotReady(u8),
+    /// The line itself (no axis, too many, a component too long).
+    Line(CoordError),
+}
+
+/// The coordinated move of a group (at most one at a time).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct CoordRun {
+    state: CoordState,
+    line: Option<Line>,
+    /// Chain indices of the members, in the line's order.
+    members: [u8; MAX_AXES],
+    n: usize,
+    targets: [i64; MAX_AXES],
+    /// Bit i: member i moves (a zero component only rests).
+    moving: u8,
+    abort: Option<(u8, AbortReason)>,
+    /// Ticks the line has run.
+    ticks: u32,
+}
+
+impl Default for CoordRun {
+    fn default() -> CoordRun {
+        CoordRun::new()
+    }
+}
+
+impl CoordRun {
+    pub const fn new() -> CoordRun {
+        CoordRun {
+            state: CoordState::Idle,
+            line: None,
+            members: [0; MAX_AXES],
+            n: 0,
+            targets: [0; MAX_AXES],
+            moving: 0,
+            abort: None,
+            ticks: 0,
+        }
+    }
+
+    pub fn state(&self) -> CoordState {
+        self.state
+    }
+
+    /// Which member ended the move early and why (`None` while it runs or
+    /// when it arrived).
+    pub fn abort(&self) -> Option<(u8, AbortReason)> {
+        self.abort
+    }
+
+    /// Ticks the line has run (its duration once it is over).
+    pub fn ticks(&self) -> u32 {
+        self.ticks
+    }
+
+    /// The line running, or the last one.
+    pub fn line(&self) -> Option<&Line> {
+        self.line.as_ref()
+    }
+
+    /// The move is under way (starting, running, stopping or settling):
+    /// its members take no motion command of their own.
+    pub fn is_active(&self) -> bool {
+        matches!(
+            self.state,
+            CoordState::Starting
+                | CoordState::Running
+                | CoordState::Stopping
+                | CoordState::Settling
+        )
+    }
+
+    /// Axis `k` (chain index) is a member of the move under way.
+    pub fn is_member(&self, k: usize) -> bool {
+        self.is_active() && self.member_list().iter().any(|&m| usize::from(m) == k)
+    }
+
+    fn member_list(&self) -> &[u8] {
+        self.members.get(..self.n).unwrap_or(&[])
+    }
+
+    /// Start the move of the axes `members` (chain indices) to `targets`
+    /// (each in its axis's logical steps), at most at the `path` limits
+    /// (steps of the axis that travels farthest; `u32::MAX` for none).
+    pub fn start(
+        &mut self,
+        axes: &mut [Axis],
+        members: &[usize],
+        targets: &[i64],
+        path: Limits,
+    ) -> Result<(), StartError> {
+        if self.is_active() {
+            return Err(StartError::Busy);
+        }
+        let n = members.len();
+        if n == 0 {
+            return Err(StartError::Line(CoordError::NoAxes));
+        }
+        if n > MAX_AXES {
+            return Err(StartError::Line(CoordError::TooManyAxes));
+        }
+        if targets.len() != n {
+            return Err(StartError::Line(CoordError::LengthMismatch));
+        }
+        let mut ids = [0u8; MAX_AXES];
+        let mut starts = [0i64; MAX_AXES];
+        let mut offsets = [0i64; MAX_AXES];
+        let mut limits = [Limits {
+            max_speed: 1,
+            acc: 1,
+            dec: 1,
+        }; MAX_AXES];
+        let mut tick_us = 1000;
+        for (i, &k) in members.iter().enumerate() {
+            let twice = members.get(..i).is_some_and(|m| m.contains(&k));
+            let id = u8::try_from(k).map_err(|_| StartError::BadAxis)?;
+            let axis = axes
+                .get_mut(k)
+                .filter(|_| !twice)
+                .ok_or(StartError::BadAxis)?;
+            if !axis.can_follow() {
+                return Err(StartError::NotReady(id));
+            }
+            let fine = axis.profile().position_fine();
+            let whole = round_fine(fine);
+            let (Some(d), Some(s), Some(o), Some(l)) = (
+                ids.get_mut(i),
+                starts.get_mut(i),
+                offsets.get_mut(i),
+                limits.get_mut(i),
+            ) else {
+                return Err(StartError::Line(CoordError::TooManyAxes));
+            };
+            *d = id;
+            *s = i64::try_from(whole).map_err(|_| StartError::Line(CoordError::TooLong))?;
+            // Within half a step of the nearest one.
+            *o = i64::try_from(fine.wrapping_sub(whole << POS_FRAC)).unwrap_or(0);
+            *l = axis.streaming_limits();
+            tick_us = axis.config().tick_us;
+        }
+        let (starts, offsets, limits) = (
+            starts.get(..n).unwrap_or(&[]),
+            offsets.get(..n).unwrap_or(&[]),
+            limits.get(..n).unwrap_or(&[]),
+        );
+        let line = Line::new(tick_us, starts, targets, limits, path)
+            .and_then(|l| l.with_offsets(offsets))
+            .map_err(StartError::Line)?;
+        let mut moving = 0u8;
+        let mut t = [0i64; MAX_AXES];
+        for (i, ((&k, &target), (&s, &o))) in members
+            .iter()
+            .zip(targets)
+            .zip(starts.iter().zip(offsets))
+            .enumerate()
+        {
+            if let Some(slot) = t.get_mut(i) {
+                *slot = target;
+            }
+            if target != s || o != 0 {
+                moving |= 1 << i;
+                if let Some(axis) = axes.get_mut(k) {
+                    axis.follow(target);
+                }
+            }
+        }
+        *self = CoordRun {
+            state: if moving == 0 {
+                CoordState::Done
+            } else {
+                CoordState::Starting
+            },
+            line: Some(line),
+            members: ids,
+            n,
+            targets: t,
+            moving,
+            abort: None,
+            ticks: 0,
+        };
+        Ok(())
+    }
+
+    /// Stop along the line (the group's stop): the shared profile brakes
+    /// with the line's deceleration. A move not yet started holds where it
+    /// is.
+    pub fn stop(&mut self, axes: &mut [Axis]) {
+        self.stop_for(axes, None);
+    }
+
+    fn stop_for(&mut self, axes: &mut [Axis], by: Option<u8>) {
+        match self.state {
+            CoordState::Starting => {
+                // Nothing has moved: every member holds where it is.
+                self.abort = Some((by.unwrap_or(u8::MAX), AbortReason::Stopped));
+                self.hold_all(axes);
+                self.state = CoordState::Settling;
+            }
+            CoordState::Running => {
+                self.abort = Some((by.unwrap_or(u8::MAX), AbortReason::Stopped));
+                if let Some(l) = self.line.as_mut() {
+                    l.stop();
+                }
+                self.state = CoordState::Stopping;
+            }
+            _ => {}
+        }
+    }
+
+    /// Every moving member holds at its point of the line now.
+    fn hold_all(&mut self, axes: &mut [Axis]) {
+        for (i, k) in self.moving_members() {
+            let pos = self.line.as_ref().and_then(|l| l.position_fine(i));
+            if let (Some(axis), Some(pos)) = (axes.get_mut(k), pos) {
+                axis.hold_led(pos);
+            }
+        }
+    }
+
+    /// (line index, chain index) of the moving members.
+    fn moving_members(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
+        let moving = self.moving;
+        self.member_list()
+            .iter()
+            .enumerate()
+            .filter(move |(i, _)| moving & (1 << i) != 0)
+            .map(|(i, &k)| (i, usize::from(k)))
+    }
+
+    /// One control tick, before the axes plan: lead every member to its
+    /// point of the line (module doc).
+    pub fn step(&mut self, axes: &mut [Axis]) {
+        match self.state {
+            CoordState::Starting | CoordState::Running | CoordState::Stopping => {
+                self.lead_step(axes)
+            }
+            CoordState::Settling => {
+                let rest = self
+                    .member_list()
+                    .iter()
+                    .all(|&k| axes.get(usize::from(k)).is_none_or(|a| a.is_at_rest()));
+                if rest {
+                    if self.abort.is_none() {
+                        self.abort = self.missed(axes);
+                    }
+                    self.state = if self.abort.is_some() {
+                        CoordState::Aborted
+                    } else {
+                        CoordState::Done
+                    };
+                }
+            }
+            CoordState::Idle | CoordState::Done | CoordState::Aborted => {}
+        }
+    }
+
+    fn lead_step(&mut self, axes: &mut [Axis]) {
+        // A member that left the line stops the others at once.
+        let left = self
+            .moving_members()
+            .find(|&(_, k)| axes.get(k).is_none_or(|a| !a.is_following()));
+        if let Some((_, k)) = left {
+            self.halt(axes, k);
+            return;
+        }
+        let mut asked = None;
+        for (_, k) in self.moving_members() {
+            if let Some(a) = axes.get_mut(k) {
+                if a.take_stop_request() && asked.is_none() {
+                    asked = u8::try_from(k).ok();
+                }
+            }
+        }
+        if asked.is_some() {
+            self.stop_for(axes, asked);
+            if self.state == CoordState::Settling {
+                return;
+            }
+        }
+        if self.state == CoordState::Starting {
+            let all = self
+                .moving_members()
+                .all(|(_, k)| axes.get(k).is_some_and(|a| a.is_streaming()));
+            if !all {
+                // Held where they are until every member streams.
+                self.lead_all(axes);
+                return;
+            }
+            self.state = CoordState::Running;
+        }
+        let Some(line) = self.line.as_mut() else {
+            return;
+        };
+        line.tick();
+        self.ticks = self.ticks.saturating_add(1);
+        let done = line.is_done();
+        if done && self.state == CoordState::Stopping {
+            self.hold_all(axes);
+            self.state = CoordState::Settling;
+            return;
+        }
+        self.lead_all(axes);
+        if done {
+            // Every member is on its target at rest: each lands by itself.
+            for (_, k) in self.moving_members() {
+                if let Some(a) = axes.get_mut(k) {
+                    a.unlead();
+                }
+            }
+            self.state = CoordState::Settling;
+        }
+    }
+
+    /// Every moving member's setpoint for this tick: its point of the line.
+    fn lead_all(&self, axes: &mut [Axis]) {
+        let Some(line) = self.line.as_ref() else {
+            return;
+        };
+        for (i, k) in self.moving_members() {
+            let (Some(pos), Some(vel)) = (line.position_fine(i), line.velocity_internal(i)) else {
+                continue;
+            };
+            if let Some(a) = axes.get_mut(k) {
+                a.lead(pos, vel);
+            }
+        }
+    }
+
+    /// Member `k` left the line: every other member stops at once.
+    fn halt(&mut self, axes: &mut [Axis], k: usize) {
+        let reason = match axes.get(k).and_then(|a| a.fault()) {
+            Some(f) => AbortReason::Fault(f),
+            None => AbortReason::MemberStopped,
+        };
+        self.abort = Some((u8::try_from(k).unwrap_or(u8::MAX), reason));
+        for (_, j) in self.moving_members() {
+            if let Some(a) = axes.get_mut(j) {
+                if a.is_following() {
+                    a.unlead();
+                    a.stop_now();
+                } else {
+                    a.unlead();
+                }
+            }
+        }
+        self.state = CoordState::Settling;
+    }
+
+    /// The first moving member that did not end on its target (a fault or
+    /// a stop while it landed), and why.
+    fn missed(&self, axes: &[Axis]) -> Option<(u8, AbortReason)> {
+        self.moving_members().find_map(|(i, k)| {
+            let a = axes.get(k)?;
+            let target = self.target(i)?;
+            if a.required_position() == target {
+                return None;
+            }
+            let reason = a
+                .fault()
+                .map_or(AbortReason::MemberStopped, AbortReason::Fault);
+            Some((u8::try_from(k).unwrap_or(u8::MAX), reason))
+        })
+    }
+
+    /// Member `i`'s target (line order).
+    pub fn target(&self, i: usize) -> Option<i64> {
+        self.targets.get(..self.n)?.get(i).copied()
+    }
+
+    /// The members' chain indices, in the line's order.
+    pub fn members(&self) -> &[u8] {
+        self.member_list()
+    }
+}

@@ -1,0 +1,446 @@
+//! Coordinated moves (`motion::coordinated`) against the simulated chain,
+//! with an oracle of this file's own: the straight line through the
+//! members' start and target in physical microsteps, the chips' own
+//! positions and speeds, and the arrival tick of every member.
+
+use bridge_logic::motion::axis::logical_to_physical;
+use bridge_logic::motion::{AbortReason, AxisConfig, AxisState, CoordState, Limits};
+use bridge_logic::powerstep::{Command, Direction, DriveMode, StepSel};
+use host_tests::rig::{config, Rig};
+use host_tests::rng::Rng;
+
+const FAST: Limits = Limits {
+    max_speed: u32::MAX,
+    acc: u32::MAX,
+    dec: u32::MAX,
+};
+
+/// Is there a λ ∈ [0, 1] with |pₖ − (aₖ + Dₖ·λ)| ≤ tol for every axis?
+/// (Exact: λ's bounds as fractions.)
+fn on_line(p: &[i64], a: &[i64], d: &[i64], tol: i64) -> bool {
+    // λ ∈ [lo, hi], each (num, den) with den > 0.
+    let (mut lo, mut hi) = ((0i128, 1i128), (1i128, 1i128));
+    for k in 0..p.len() {
+        let (pk, ak, dk) = (i128::from(p[k]), i128::from(a[k]), i128::from(d[k]));
+        let t = i128::from(tol);
+        if dk == 0 {
+            if (pk - ak).abs() > t {
+                return false;
+            }
+            continue;
+        }
+        let (mut l, mut h) = ((pk - t - ak, dk), (pk + t - ak, dk));
+        if dk < 0 {
+            (l, h) = ((-h.0, -dk), (-l.0, -dk));
+        }
+        if l.0 * lo.1 > lo.0 * l.1 {
+            lo = l;
+        }
+        if h.0 * hi.1 < hi.0 * h.1 {
+            hi = h;
+        }
+    }
+    lo.0 * hi.1 <= hi.0 * lo.1
+}
+
+/// A member: its configuration, limits, start and target (logical steps).
+#[derive(Clone, Copy, Debug)]
+struct Member {
+    cfg: AxisConfig,
+    limits: Limits,
+    target: i64,
+}
+
+/// What a run of one coordinated move saw.
+#[derive(Debug, Default)]
+struct Seen {
+    /// Largest distance of the commanded positions from the line (µsteps).
+    commanded: i64,
+    /// Largest distance of the chips' positions from the line (µsteps).
+    chips: i64,
+    /// Tick at which each member's profile reached its target at rest.
+    arrival: Vec<Option<u32>>,
+    /// Largest |chip speed| per member over its limit (1.0 = at it).
+    speed: Vec<f64>,
+    /// Per seed of a random run: the largest Run change over its limit.
+    acc: Vec<f64>,
+    /// The same two of the Run speeds each chip was sent (the change less one
+    /// step of the read-back correction).
+    run_speed: Vec<f64>,
+    run_acc: Vec<f64>,
+    ticks: u32,
+}
+
+/// The smallest tolerance (µsteps) at which `p` is on the line.
+fn distance(p: &[i64], a: &[i64], d: &[i64]) -> i64 {
+    (0..).find(|&t| on_line(p, a, d, t)).unwrap_or(i64::MAX)
+}
+
+fn physical(m: &Member, logical: i64) -> i64 {
+    logical_to_physical(logical, m.cfg.logical_shift, m.cfg.step)
+}
+
+/// Run the coordinated move of `members` (all of the rig's axes, from
+/// where they rest) to its end; the oracle's figures.
+fn run_line(members: &[Member], path: Limits, cap_ticks: u32) -> (Rig, Seen) {
+    let cfgs: Vec<AxisConfig> = members.iter().map(|m| m.cfg).collect();
+    let mut rig = Rig::new(&cfgs, members[0].limits);
+    for (k, m) in members.iter().enumerate() {
+        rig.axis(k).set_limits(m.limits);
+    }
+    rig.run(3);
+    let n = members.len();
+    let a: Vec<i64> = (0..n).map(|k| rig.chip_position(k)).collect();
+    let d: Vec<i64> = members
+        .iter()
+        .enumerate()
+        .map(|(k, m)| physical(m, m.target) - a[k])
+        .collect();
+    let ids: Vec<usize> = (0..n).collect();
+    let targets: Vec<i64> = members.iter().map(|m| m.target).collect();
+    rig.group
+        .coord_start(&ids, &targets, path)
+        .expect("coordinated move starts");
+    let mut seen = Seen {
+        arrival: vec![None; n],
+        speed: vec![0.0; n],
+        run_speed: vec![0.0; n],
+        run_acc: vec![0.0; n],
+        ..Seen::default()
+    };
+    let eff: Vec<Limits> = (0..n)
+        .map(|k| rig.group.axis_mut(k).unwrap().streaming_limits())
+        .collect();
+    // The Run speed in effect at each of the last `window` ticks (10 ms):
+    // accelerations are measured over it, as the chip's own ramps run
+    // between two Runs and one tick at 5 kHz is below one SPEED quantum.
+    let window = (10_000 / members[0].cfg.tick_us).max(1) as usize;
+    let mut runs: Vec<std::collections::VecDeque<f64>> = vec![Default::default(); n];
+    for k in 0..n {
+        rig.chain
+            .bus_mut()
+            .device_mut(k)
+            .expect("device")
+            .clear_log();
+    }
+    for t in 0..cap_ticks {
+        rig.tick();
+        let commanded: Vec<i64> = (0..n)
+            .map(|k| rig.group.axis(k).unwrap().profile_physical())
+            .collect();
+        let chips: Vec<i64> = (0..n).map(|k| rig.chip_position(k)).collect();
+        seen.commanded = seen.commanded.max(distance(&commanded, &a, &d));
+        seen.chips = seen.chips.max(distance(&chips, &a, &d));
+        for k in 0..n {
+            let v = chip_speed(&rig, k, &members[k]);
+            seen.speed[k] = seen.speed[k].max(v.abs() / f64::from(eff[k].max_speed));
+            let chip = rig.chain.bus_mut().device_mut(k).expect("device");
+            let run = chip
+                .received()
+                .filter_map(|c| match *c {
+                    Command::Run(dir, spd) => Some(signed_run(dir, spd, &members[k])),
+                    _ => None,
+                })
+                .last();
+            chip.clear_log();
+            let r = run.or(runs[k].back().copied()).unwrap_or(0.0);
+            seen.run_speed[k] = seen.run_speed[k].max(r.abs() / f64::from(eff[k].max_speed));
+            if runs[k].len() == window {
+                let from = runs[k].pop_front().unwrap_or(0.0);
+                // Less the read-back correction's dither (a following
+                // error of ±2 microsteps changes the Run by it).
+                let dr = ((r - from).abs() - correction_step(&members[k])).max(0.0);
+                let span = tick_s(&members[k]) * window as f64;
+                let ratio = dr / span / ramp(&eff[k], from, r);
+                if std::env::var("COORD_TRACE").is_ok() && ratio > 1.05 {
+                    let a = rig.group.axis(k).unwrap();
+                    eprintln!("t {t} axis {k} run {from:.1} -> {r:.1} ratio {ratio:.2} state {:?} err {} coord {:?} prof v {} pos {} target {} chip {}", a.state(), a.following_error(), rig.group.coord().state(), a.profile().velocity(), a.profile_physical(), members[k].target, chips[k]);
+                }
+                seen.run_acc[k] = seen.run_acc[k].max(ratio);
+            }
+            runs[k].push_back(r);
+            let p = rig.group.axis(k).unwrap().profile();
+            if seen.arrival[k].is_none()
+                && p.is_settled()
+                && p.position_round() == members[k].target
+            {
+                seen.arrival[k] = Some(t);
+            }
+        }
+        if rig.group.coord().state() == CoordState::Done && rig.group.is_settled() {
+            seen.ticks = t;
+            return (rig, seen);
+        }
+    }
+    panic!(
+        "not done in {cap_ticks} ticks: {:?} {}",
+        rig.group.coord().state(),
+        rig.describe()
+    );
+}
+
+/// The simulated chip's speed (its SPEED, 2⁻⁴⁰ full steps per 250 ns),
+/// signed by its direction, in the member's logical steps/s.
+fn chip_speed(rig: &Rig, k: usize, m: &Member) -> f64 {
+    let chip = rig.chain.bus().device(k).expect("device");
+    let full_per_s = chip.speed_internal() as f64 * 4.0e6 / (1u64 << 40) as f64;
+    let forward = chip.status().direction() == Direction::Forward;
+    let sign = if forward { 1.0 } else { -1.0 };
+    sign * full_per_s * f64::from(1u32 << m.cfg.logical_shift)
+}
+
+/// The limit a speed change from `from` to `to` is bound by: the
+/// acceleration when it speeds up in one direction, the deceleration when
+/// it slows down, the larger when it reverses.
+fn ramp(l: &Limits, from: f64, to: f64) -> f64 {
+    let reverses = from != 0.0 && to != 0.0 && from.signum() != to.signum();
+    let up = to.abs() > from.abs();
+    f64::from(if reverses {
+        l.acc.max(l.dec)
+    } else if up {
+        l.acc
+    } else {
+        l.dec
+    })
+}
+
+/// The Run speed (logical steps/s) by which a following error dithering
+/// between −2 and +2 microsteps changes the read-back correction: four
+/// microsteps over the correction period (8 ms). (A chip at more than a
+/// microstep per tick is read ±1 microstep off at each read, and the
+/// reads see it ±1 tick late: the same for an axis moving alone.)
+fn correction_step(m: &Member) -> f64 {
+    let micro = 2f64.powi(i32::from(m.cfg.logical_shift) - i32::from(m.cfg.step.shift() as u8));
+    4.0 * micro / 0.008
+}
+
+/// A Run's speed (SPEED units, 2⁻²⁸ full steps per 250 ns) in the
+/// member's logical steps/s, signed by its direction.
+fn signed_run(dir: Direction, spd: u32, m: &Member) -> f64 {
+    let full_per_s = f64::from(spd) * 4.0e6 / f64::from(1u32 << 28);
+    let v = full_per_s * f64::from(1u32 << m.cfg.logical_shift);
+    if dir == Direction::Forward {
+        v
+    } else {
+        -v
+    }
+}
+
+fn tick_s(m: &Member) -> f64 {
+    f64::from(m.cfg.tick_us) * 1e-6
+}
+
+fn lim(max_speed: u32, acc: u32) -> Limits {
+    Limits {
+        max_speed,
+        acc,
+        dec: acc,
+    }
+}
+
+#[test]
+fn three_axes_in_three_step_modes_arrive_together_on_the_line() {
+    let members = [
+        Member {
+            cfg: config(4, StepSel::OneTwentyEighth, DriveMode::Voltage),
+            limits: lim(20_000, 200_000),
+            target: 30_000,
+        },
+        Member {
+            cfg: config(0, StepSel::OneTwentyEighth, DriveMode::Voltage),
+            limits: lim(2_000, 20_000),
+            target: -700,
+        },
+        Member {
+            cfg: config(7, StepSel::OneTwentyEighth, DriveMode::Voltage),
+            limits: lim(100_000, 1_000_000),
+            target: 5,
+        },
+    ];
+    let (rig, seen) = run_line(&members, FAST, 20_000);
+    eprintln!("{seen:?}");
+    assert!(
+        seen.commanded <= 1,
+        "commanded {} µsteps off the line",
+        seen.commanded
+    );
+    let first = seen.arrival[0];
+    assert!(first.is_some() && seen.arrival.iter().all(|t| *t == first));
+    for (k, m) in members.iter().enumerate() {
+        assert_eq!(
+            rig.chip_position(k),
+            physical(m, m.target),
+            "axis {k} lands"
+        );
+        assert_eq!(rig.group.axis(k).unwrap().state(), AxisState::Idle);
+    }
+    assert_eq!(rig.group.coord().abort(), None);
+}
+
+#[test]
+fn the_oracle_refuses_a_point_off_the_line() {
+    assert!(on_line(&[50, 25], &[0, 0], &[100, 50], 0));
+    assert!(!on_line(&[50, 27], &[0, 0], &[100, 50], 1));
+    assert!(on_line(&[50, 26], &[0, 0], &[100, 50], 1));
+    assert!(!on_line(&[101, 50], &[0, 0], &[100, 50], 0));
+    assert!(on_line(&[3, -7], &[3, 0], &[0, -10], 0));
+    let _ = Rng(1);
+    let _ = AbortReason::Stopped;
+}
+
+/// A random group: 2–8 members, mixed step modes and limits, zero, tiny
+/// and long components (long ones up to about two seconds at their speed).
+fn random_group(rng: &mut Rng) -> Vec<Member> {
+    let n = 2 + rng.below(7) as usize;
+    (0..n)
+        .map(|_| {
+            let shift = rng.below(9) as u8;
+            let step = if rng.below(3) == 0 {
+                StepSel::Sixteenth
+            } else {
+                StepSel::OneTwentyEighth
+            };
+            let cap = bridge_logic::motion::units::limit_cap(shift);
+            let frac = |rng: &mut Rng, x: u32| -> u32 {
+                let f = 1 + rng.below(100) as u32;
+                ((u64::from(x) * u64::from(f)) / 100).max(1) as u32
+            };
+            let limits = Limits {
+                max_speed: frac(rng, cap.max_speed),
+                acc: frac(rng, cap.acc),
+                dec: frac(rng, cap.dec),
+            };
+            let target = match rng.below(4) {
+                0 => 0,
+                1 => rng.range(-5, 5),
+                _ => {
+                    let far = i64::from(limits.max_speed) * 2;
+                    rng.range(-far, far)
+                }
+            };
+            Member {
+                cfg: config(shift, step, DriveMode::Voltage),
+                limits,
+                target,
+            }
+        })
+        .collect()
+}
+
+/// The oracle's bounds on what one coordinated move showed.
+fn check(members: &[Member], rig: &Rig, seen: &Seen, what: &str) {
+    assert!(
+        seen.commanded <= 1,
+        "{what}: commanded {} µsteps off the line",
+        seen.commanded
+    );
+    let moving: Vec<Option<u32>> = seen
+        .arrival
+        .iter()
+        .zip(members)
+        .enumerate()
+        .filter(|(k, (_, m))| physical(m, m.target) != rig.chip_position(*k) || m.target != 0)
+        .map(|(_, (t, _))| *t)
+        .collect();
+    let first = moving.first().copied().flatten();
+    assert!(
+        moving.iter().all(|t| *t == first),
+        "{what}: arrivals {:?}",
+        seen.arrival
+    );
+    for (k, m) in members.iter().enumerate() {
+        assert_eq!(
+            rig.chip_position(k),
+            physical(m, m.target),
+            "{what}: axis {k} lands"
+        );
+        assert!(
+            seen.speed[k] <= 1.05,
+            "{what}: axis {k} chip speed {:.3} of its max",
+            seen.speed[k]
+        );
+        assert!(
+            seen.run_speed[k] <= 1.05,
+            "{what}: axis {k} Run {:.3} of its max",
+            seen.run_speed[k]
+        );
+        assert!(
+            seen.run_acc[k] <= 1.1,
+            "{what}: axis {k} Run change {:.3} of its acc",
+            seen.run_acc[k]
+        );
+    }
+}
+
+#[test]
+fn random_groups_stay_on_the_line_arrive_together_and_keep_every_axis_within_its_limits() {
+    let seeds: u64 = std::env::var("COORD_SEEDS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(24);
+    let mut worst = Seen::default();
+    for seed in 0..seeds {
+        let mut rng = Rng(0xC00D_0000 + seed);
+        let members = random_group(&mut rng);
+        // No path limit, or 10–100 % of the farthest member's own.
+        let far = members
+            .iter()
+            .max_by_key(|m| m.target.abs())
+            .expect("members")
+            .limits;
+        let path = if rng.below(2) == 0 {
+            FAST
+        } else {
+            let pct = 10 + rng.below(91);
+            let part = |x: u32| ((u64::from(x) * pct) / 100).max(1) as u32;
+            Limits {
+                max_speed: part(far.max_speed),
+                acc: part(far.acc),
+                dec: part(far.dec),
+            }
+        };
+        let (rig, seen) = run_line(&members, path, 400_000);
+        check(
+            &members,
+            &rig,
+            &seen,
+            &format!("seed {seed} {members:?} path {path:?}"),
+        );
+        worst.chips = worst.chips.max(seen.chips);
+        worst.ticks = worst.ticks.max(seen.ticks);
+        let run_acc = seen.run_acc.iter().copied().fold(0.0, f64::max);
+        worst.acc.push(run_acc);
+        worst.speed.push(
+            seen.speed
+                .iter()
+                .chain(&seen.run_speed)
+                .copied()
+                .fold(0.0, f64::max),
+        );
+    }
+    eprintln!(
+        "chips off the line at most {} µsteps; longest {} ticks; Run change / acc at most {:.3}; speed / max at most {:.4}",
+        worst.chips,
+        worst.ticks,
+        worst.acc.iter().copied().fold(0.0, f64::max),
+        worst.speed.iter().copied().fold(0.0, f64::max)
+    );
+}
+
+#[test]
+fn a_component_of_more_than_two_to_the_21_steps_lands_exactly() {
+    let members = [
+        Member {
+            cfg: config(8, StepSel::OneTwentyEighth, DriveMode::Voltage),
+            limits: bridge_logic::motion::units::limit_cap(8),
+            target: 3 << 21,
+        },
+        Member {
+            cfg: config(0, StepSel::OneTwentyEighth, DriveMode::Voltage),
+            limits: bridge_logic::motion::units::limit_cap(0),
+            target: -9_000,
+        },
+    ];
+    let (rig, seen) = run_line(&members, FAST, 2_000_000);
+    check(&members, &rig, &seen, "long");
+}
