@@ -8,6 +8,7 @@ use bridge_logic::motion::{AbortReason, AxisConfig, AxisState, CoordState, Limit
 use bridge_logic::powerstep::{Command, Direction, DriveMode, StepSel};
 use host_tests::rig::{config, Rig};
 use host_tests::rng::Rng;
+use stepbridge_sim::Fault;
 
 const FAST: Limits = Limits {
     max_speed: u32::MAX,
@@ -443,4 +444,158 @@ fn a_component_of_more_than_two_to_the_21_steps_lands_exactly() {
     ];
     let (rig, seen) = run_line(&members, FAST, 2_000_000);
     check(&members, &rig, &seen, "long");
+}
+
+/// What interrupts a coordinated move.
+#[derive(Clone, Copy, Debug, PartialEq)]
+enum Interrupt {
+    /// The group's stop.
+    GroupStop,
+    /// A soft stop asked of member k.
+    SoftStop(usize),
+    /// An immediate stop of member k (a Stop, an end switch).
+    StopNow(usize),
+    /// A chip fault on member k.
+    Chip(usize, Fault),
+}
+
+fn is_motion(c: &Command) -> bool {
+    matches!(
+        c,
+        Command::Run(..)
+            | Command::Move(..)
+            | Command::GoTo(..)
+            | Command::GoToDir(..)
+            | Command::GoHome
+            | Command::GoMark
+            | Command::GoUntil(..)
+            | Command::ReleaseSw(..)
+    )
+}
+
+/// Run the move of `members`, interrupt it at tick `at`, and check that
+/// the group stops on the line (within `tol` µsteps of it beyond what the
+/// chips showed while running) and then rests: no motion command reaches
+/// any chip and no chip moves for 300 ms.
+fn interrupted(members: &[Member], at: u32, what: Interrupt) -> (i64, Option<(u8, AbortReason)>) {
+    let cfgs: Vec<AxisConfig> = members.iter().map(|m| m.cfg).collect();
+    let mut rig = Rig::new(&cfgs, members[0].limits);
+    for (k, m) in members.iter().enumerate() {
+        rig.axis(k).set_limits(m.limits);
+    }
+    rig.run(3);
+    let n = members.len();
+    let a: Vec<i64> = (0..n).map(|k| rig.chip_position(k)).collect();
+    let d: Vec<i64> = members
+        .iter()
+        .enumerate()
+        .map(|(k, m)| physical(m, m.target) - a[k])
+        .collect();
+    let ids: Vec<usize> = (0..n).collect();
+    let targets: Vec<i64> = members.iter().map(|m| m.target).collect();
+    rig.group.coord_start(&ids, &targets, FAST).expect("starts");
+    for _ in 0..at {
+        rig.tick();
+    }
+    match what {
+        Interrupt::GroupStop => rig.group.coord_stop(),
+        Interrupt::SoftStop(k) => rig.axis(k).soft_stop(),
+        Interrupt::StopNow(k) => rig.axis(k).stop_now(),
+        Interrupt::Chip(k, f) => rig.chain.bus_mut().device_mut(k).expect("chip").inject(f),
+    }
+    let tick_ms = f64::from(members[0].cfg.tick_us) / 1000.0;
+    let cap = (20_000.0 / tick_ms) as u32;
+    let mut ticks = 0;
+    while !(matches!(rig.group.coord().state(), CoordState::Aborted | CoordState::Done)
+        && rig.group.is_settled())
+    {
+        rig.tick();
+        ticks += 1;
+        assert!(ticks < cap, "{what:?}: not over: {:?} {}", rig.group.coord().state(), rig.describe());
+    }
+    let chips: Vec<i64> = (0..n).map(|k| rig.chip_position(k)).collect();
+    let off = distance(&chips, &a, &d);
+    // Rests: nothing moves, no motion command, for 300 ms.
+    for k in 0..n {
+        rig.chain.bus_mut().device_mut(k).expect("chip").clear_log();
+    }
+    for _ in 0..(300.0 / tick_ms) as u32 {
+        rig.tick();
+    }
+    for k in 0..n {
+        assert_eq!(rig.chip_position(k), chips[k], "{what:?}: axis {k} moved after the stop");
+        let chip = rig.chain.bus().device(k).expect("chip");
+        let moved: Vec<&Command> = chip.received().filter(|c| is_motion(c)).collect();
+        assert!(moved.is_empty(), "{what:?}: axis {k} was sent {moved:?} after the stop");
+    }
+    (off, rig.group.coord().abort())
+}
+
+/// A random group with at least one long component (the move lasts).
+fn random_long_group(rng: &mut Rng) -> Vec<Member> {
+    let mut members = random_group(rng);
+    let m = &mut members[0];
+    m.target = i64::from(m.limits.max_speed).max(200) * if rng.below(2) == 0 { 1 } else { -1 };
+    members
+}
+
+#[test]
+fn every_interruption_stops_the_group_on_its_line_and_it_rests() {
+    let seeds: u64 = std::env::var("COORD_SEEDS").ok().and_then(|s| s.parse().ok()).unwrap_or(24);
+    let mut worst = [0i64; 4];
+    for seed in 0..seeds {
+        let mut rng = Rng(0x5709_0000 + seed);
+        let members = random_long_group(&mut rng);
+        let k = rng.below(members.len() as u64) as usize;
+        let kinds = [
+            Interrupt::GroupStop,
+            Interrupt::SoftStop(k),
+            Interrupt::StopNow(k),
+            Interrupt::Chip(k, Fault::Overcurrent),
+            Interrupt::Chip(k, Fault::Uvlo),
+            Interrupt::Chip(k, Fault::ThermalShutdown),
+        ];
+        let what = kinds[rng.below(kinds.len() as u64) as usize];
+        let tick_ms = f64::from(members[0].cfg.tick_us) / 1000.0;
+        let at = 1 + rng.below((600.0 / tick_ms) as u64) as u32;
+        let (off, abort) = interrupted(&members, at, what);
+        let ctx = format!("seed {seed} {what:?} at {at}: {members:?}");
+        let k8 = k as u8;
+        let (slot, tol) = match what {
+            // Braking along the line: as close as the chips follow it.
+            Interrupt::GroupStop => {
+                assert!(matches!(abort, Some((_, AbortReason::Stopped)) | None), "{ctx}: {abort:?}");
+                (0, 8)
+            }
+            Interrupt::SoftStop(_) => {
+                assert!(matches!(abort, Some((j, AbortReason::Stopped)) if j == k8) || abort.is_none(), "{ctx}: {abort:?}");
+                (0, 8)
+            }
+            // Every chip stopped in one batch.
+            Interrupt::StopNow(_) => {
+                assert!(matches!(abort, Some((j, AbortReason::MemberStopped)) if j == k8) || abort.is_none(), "{ctx}: {abort:?}");
+                (1, 8)
+            }
+            // The fault is seen at the next STATUS read: the others stop
+            // up to three ticks after the faulted chip did (STATUS is read
+            // every other tick, and the stop goes out in the next batch).
+            Interrupt::Chip(..) => {
+                assert!(matches!(abort, Some((j, AbortReason::Fault(_))) if j == k8) || abort.is_none(), "{ctx}: {abort:?}");
+                let fastest = members
+                    .iter()
+                    .map(|m| {
+                        let micro = 2f64.powi(m.cfg.step.shift() as i32 - i32::from(m.cfg.logical_shift));
+                        f64::from(m.limits.max_speed) * micro * tick_ms / 1000.0
+                    })
+                    .fold(0.0, f64::max);
+                (2, 8 + (3.0 * fastest).ceil() as i64)
+            }
+        };
+        assert!(off <= tol, "{ctx}: stopped {off} µsteps off the line");
+        worst[slot] = worst[slot].max(off);
+    }
+    eprintln!(
+        "stopped off the line at most: soft stops {} µsteps, immediate stops {}, chip faults {}",
+        worst[0], worst[1], worst[2]
+    );
 }
