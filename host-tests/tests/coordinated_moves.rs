@@ -3,6 +3,8 @@
 //! members' start and target in physical microsteps, the chips' own
 //! positions and speeds, and the arrival tick of every member.
 
+#![allow(clippy::needless_range_loop)] // axes are addressed by chain index
+
 use bridge_logic::motion::axis::logical_to_physical;
 use bridge_logic::motion::{AbortReason, AxisConfig, AxisState, CoordState, Limits};
 use bridge_logic::powerstep::{Command, Direction, DriveMode, StepSel};
@@ -506,12 +508,19 @@ fn interrupted(members: &[Member], at: u32, what: Interrupt) -> (i64, Option<(u8
     let tick_ms = f64::from(members[0].cfg.tick_us) / 1000.0;
     let cap = (20_000.0 / tick_ms) as u32;
     let mut ticks = 0;
-    while !(matches!(rig.group.coord().state(), CoordState::Aborted | CoordState::Done)
-        && rig.group.is_settled())
+    while !(matches!(
+        rig.group.coord().state(),
+        CoordState::Aborted | CoordState::Done
+    ) && rig.group.is_settled())
     {
         rig.tick();
         ticks += 1;
-        assert!(ticks < cap, "{what:?}: not over: {:?} {}", rig.group.coord().state(), rig.describe());
+        assert!(
+            ticks < cap,
+            "{what:?}: not over: {:?} {}",
+            rig.group.coord().state(),
+            rig.describe()
+        );
     }
     let chips: Vec<i64> = (0..n).map(|k| rig.chip_position(k)).collect();
     let off = distance(&chips, &a, &d);
@@ -523,10 +532,17 @@ fn interrupted(members: &[Member], at: u32, what: Interrupt) -> (i64, Option<(u8
         rig.tick();
     }
     for k in 0..n {
-        assert_eq!(rig.chip_position(k), chips[k], "{what:?}: axis {k} moved after the stop");
+        assert_eq!(
+            rig.chip_position(k),
+            chips[k],
+            "{what:?}: axis {k} moved after the stop"
+        );
         let chip = rig.chain.bus().device(k).expect("chip");
         let moved: Vec<&Command> = chip.received().filter(|c| is_motion(c)).collect();
-        assert!(moved.is_empty(), "{what:?}: axis {k} was sent {moved:?} after the stop");
+        assert!(
+            moved.is_empty(),
+            "{what:?}: axis {k} was sent {moved:?} after the stop"
+        );
     }
     (off, rig.group.coord().abort())
 }
@@ -541,7 +557,10 @@ fn random_long_group(rng: &mut Rng) -> Vec<Member> {
 
 #[test]
 fn every_interruption_stops_the_group_on_its_line_and_it_rests() {
-    let seeds: u64 = std::env::var("COORD_SEEDS").ok().and_then(|s| s.parse().ok()).unwrap_or(24);
+    let seeds: u64 = std::env::var("COORD_SEEDS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(24);
     let mut worst = [0i64; 4];
     for seed in 0..seeds {
         let mut rng = Rng(0x5709_0000 + seed);
@@ -564,27 +583,41 @@ fn every_interruption_stops_the_group_on_its_line_and_it_rests() {
         let (slot, tol) = match what {
             // Braking along the line: as close as the chips follow it.
             Interrupt::GroupStop => {
-                assert!(matches!(abort, Some((_, AbortReason::Stopped)) | None), "{ctx}: {abort:?}");
+                assert!(
+                    matches!(abort, Some((_, AbortReason::Stopped)) | None),
+                    "{ctx}: {abort:?}"
+                );
                 (0, 8)
             }
             Interrupt::SoftStop(_) => {
-                assert!(matches!(abort, Some((j, AbortReason::Stopped)) if j == k8) || abort.is_none(), "{ctx}: {abort:?}");
+                assert!(
+                    matches!(abort, Some((j, AbortReason::Stopped)) if j == k8) || abort.is_none(),
+                    "{ctx}: {abort:?}"
+                );
                 (0, 8)
             }
             // Every chip stopped in one batch.
             Interrupt::StopNow(_) => {
-                assert!(matches!(abort, Some((j, AbortReason::MemberStopped)) if j == k8) || abort.is_none(), "{ctx}: {abort:?}");
+                assert!(
+                    matches!(abort, Some((j, AbortReason::MemberStopped)) if j == k8)
+                        || abort.is_none(),
+                    "{ctx}: {abort:?}"
+                );
                 (1, 8)
             }
             // The fault is seen at the next STATUS read: the others stop
             // up to three ticks after the faulted chip did (STATUS is read
             // every other tick, and the stop goes out in the next batch).
             Interrupt::Chip(..) => {
-                assert!(matches!(abort, Some((j, AbortReason::Fault(_))) if j == k8) || abort.is_none(), "{ctx}: {abort:?}");
+                assert!(
+                    matches!(abort, Some((j, AbortReason::Fault(_))) if j == k8) || abort.is_none(),
+                    "{ctx}: {abort:?}"
+                );
                 let fastest = members
                     .iter()
                     .map(|m| {
-                        let micro = 2f64.powi(m.cfg.step.shift() as i32 - i32::from(m.cfg.logical_shift));
+                        let micro =
+                            2f64.powi(m.cfg.step.shift() as i32 - i32::from(m.cfg.logical_shift));
                         f64::from(m.limits.max_speed) * micro * tick_ms / 1000.0
                     })
                     .fold(0.0, f64::max);

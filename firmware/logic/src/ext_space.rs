@@ -14,6 +14,7 @@
 //! | watchdog | 0x05nn | communication watchdog per bus ([`watchdog`]) | bridge |
 //! | axis | 0x06nn | signed speed, position, target, state ([`axis`]) | axis |
 //! | configured | 0x07nn | what the bridge configures in chip register `nn`, and which registers it configures ([`configured`]) | axis |
+//! | coordinated move | 0x08nn | members, targets and path limits of a straight-line move of several axes, start/stop, state ([`coord`]) | bridge |
 //!
 //! With no chip detected the bridge still answers on its first address (axis
 //! 0 of every bus): the bridge-scope blocks (I/O extension, diagnostics,
@@ -44,6 +45,7 @@ pub mod block {
     pub const WATCHDOG: u8 = 0x05;
     pub const AXIS: u8 = 0x06;
     pub const CONFIGURED: u8 = 0x07;
+    pub const COORD: u8 = 0x08;
 }
 
 /// Diagnostics (0x03nn): u32 counters in two registers, high word first.
@@ -90,7 +92,8 @@ pub mod diag {
     pub const I2C_LONG: u8 = 0x47;
     /// The last refused request: axis · 256 + reason (1 wrong mode, 2
     /// asleep, 3 faulted, 4 ignored, 5 unsupported, 6 bad address, 7 busy,
-    /// 8 boot mode); 0 none since the counters were cleared.
+    /// 8 boot mode, 14 in a coordinated move); 0 none since the counters
+    /// were cleared.
     pub const LAST_REFUSAL: u8 = 0x49;
     /// 0 the chain works, 1 its last control tick's batch failed, 2 dead
     /// (failed for `bridge::CHAIN_DEAD_TICKS` ticks in a row: STBY held
@@ -190,4 +193,38 @@ pub mod configured {
     /// 1 once the axis's set-up is done (MAX_SPEED, ACC, DEC written).
     pub const SET_UP: u8 = 0x23;
     pub const LEN: usize = 0x24;
+}
+
+/// A coordinated move (0x08nn, bridge-wide: the axes are named by their
+/// chain index, whichever address the access came to).
+pub mod coord {
+    /// Write 1 to start the move the block describes, 0 to stop it along
+    /// its line; reads the state (0 idle, 1 starting, 2 running, 3
+    /// stopping, 4 settling, 5 done, 6 aborted).
+    pub const COMMAND: u8 = 0x00;
+    /// Why the last move ended early: the member's chain index · 256 +
+    /// the reason (1 stopped: the group's stop or a member's soft stop,
+    /// index 0xFF for the group's; 2 a member stopped at once: a Stop, an
+    /// end switch, sleep; 3 overcurrent; 4 thermal shutdown; 5 chip reset;
+    /// 6 chain error); 0 none.
+    pub const ABORT: u8 = 0x01;
+    /// Bit k: chain axis k is a member.
+    pub const MEMBERS: u8 = 0x02;
+    /// Why the last start was refused: 0 none, 1 a move is under way, 2 a
+    /// member past the chain or no member, 3 a member not ready (not at
+    /// rest, asleep, faulted, homing, or not in position mode; chain index
+    /// · 256 + 3), 4 a component longer than 2³² steps.
+    pub const REFUSAL: u8 = 0x03;
+    /// u32 each: the path's max speed, acceleration, deceleration, in steps
+    /// of the member that travels farthest (per s, per s²); 0 = none (the
+    /// members' own limits alone set the pace).
+    pub const PATH_SPEED: u8 = 0x04;
+    pub const PATH_ACC: u8 = 0x06;
+    pub const PATH_DEC: u8 = 0x08;
+    /// u32: control ticks the line has run (its duration once over).
+    pub const TICKS: u8 = 0x0A;
+    /// i32 each, high word first: the target of chain axis k at 0x10 + 2k,
+    /// in that axis's logical steps.
+    pub const TARGETS: u8 = 0x10;
+    pub const LEN: usize = 0x20;
 }

@@ -47,6 +47,7 @@ pub fn usb_status_meaning(status: u8) -> &'static str {
         11 => "illegal extension value",
         12 => "refused now by the extension",
         13 => "the chip did not answer in time",
+        14 => "the axis is in a coordinated move (stop it first)",
         _ => "unknown status",
     }
 }

@@ -31,7 +31,7 @@
 //! intent with 0x01nn (`stepctl doctor` does).
 
 use super::{Bridge, Bus};
-use crate::ext_space::{axis, block, configured, diag, homing, watchdog, ExtError};
+use crate::ext_space::{axis, block, configured, coord, diag, homing, watchdog, ExtError};
 use crate::motion::AxisState;
 use crate::postep60::settings::{Watchdog, WatchdogAction, TUNABLE, WATCHED_BUSES};
 use crate::postep60::{Query, Value};
@@ -89,8 +89,27 @@ impl<B: ChainBus> Bridge<B> {
             block::WATCHDOG => copy_out(&self.watchdog_block(), offset, out),
             block::AXIS => copy_out(&self.axis_block(k)?, offset, out),
             block::CONFIGURED => copy_out(&self.configured_block(k)?, offset, out),
+            block::COORD => copy_out(&self.coord_block(), offset, out),
             _ => Err(ExtError::IllegalAddress),
         }
+    }
+
+    /// [`Bridge::ext_write`] of a request that came on `bus`: a
+    /// coordinated move it starts is that bus's for the communication
+    /// watchdog.
+    pub fn ext_write_from(
+        &mut self,
+        bus: Bus,
+        k: usize,
+        address: u16,
+        data: &[u16],
+    ) -> Result<(), ExtError> {
+        let r = self.ext_write(k, address, data);
+        let start = u16::from_be_bytes([block::COORD, coord::COMMAND]);
+        if r.is_ok() && address == start && data.first() == Some(&1) {
+            self.coord_started_by(bus);
+        }
+        r
     }
 
     /// Write `data` at `address` for axis `k`.
@@ -108,6 +127,7 @@ impl<B: ChainBus> Bridge<B> {
             }
             block::HOMING => self.homing_write(k, offset, data),
             block::WATCHDOG => self.watchdog_write(offset, data),
+            block::COORD => self.coord_write(offset, data),
             _ => Err(ExtError::IllegalAddress),
         };
         if r == Err(ExtError::Refused) {
@@ -304,6 +324,9 @@ impl<B: ChainBus> Bridge<B> {
 
     fn homing_write(&mut self, k: usize, offset: u8, data: &[u16]) -> Result<(), ExtError> {
         if self.saving || self.run_mode == super::RunMode::Boot {
+            return Err(ExtError::Refused);
+        }
+        if offset == homing::COMMAND && data == [1] && self.group.coord().is_member(k) {
             return Err(ExtError::Refused);
         }
         let (Some(d), Some(a)) = (self.devices.get_mut(k), self.group.axis_mut(k)) else {

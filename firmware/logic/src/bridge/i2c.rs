@@ -70,7 +70,7 @@ impl<B: ChainBus> I2cTarget for Bridge<B> {
             }
             Ok(I2cCommand::ExtWrite { address, data, len }) => {
                 let n = usize::from(len).min(EXT_MAX);
-                let r = self.ext_write(axis, address, data.get(..n).unwrap_or(&[]));
+                let r = self.ext_write_from(Bus::I2c, axis, address, data.get(..n).unwrap_or(&[]));
                 Some(I2cCommand::ExtStatus(status_of(r)))
             }
             Ok(other) => Some(other),

@@ -240,6 +240,7 @@ mod tests {
     }
 }
 
+mod coord;
 pub mod ext_space;
 pub mod handoff;
 mod i2c;
@@ -344,6 +345,8 @@ pub struct Bridge<B: ChainBus> {
     source: SettingsSource,
     /// The last refused request: axis and reason (diagnostics 0x0349).
     last_refusal: Option<(u8, CommandError)>,
+    /// The coordinated move as the extension space describes it (0x08nn).
+    coord: coord::CoordRegs,
     pub diag: Diagnostics,
 }
 
@@ -489,6 +492,7 @@ impl<B: ChainBus> Bridge<B> {
             failed_ticks: 0,
             source,
             last_refusal: None,
+            coord: coord::CoordRegs::default(),
             diag: Diagnostics::default(),
         }
     }
@@ -923,6 +927,9 @@ impl<B: ChainBus> Bridge<B> {
         }
         if self.saving {
             return Err(CommandError::Busy);
+        }
+        if req.leaves_a_group() && self.group.coord().is_member(k) {
+            return Err(CommandError::Grouped);
         }
         let (Some(d), Some(a)) = (self.devices.get_mut(k), self.group.axis_mut(k)) else {
             return Err(CommandError::Unsupported);

@@ -45,6 +45,6 @@ impl<B: ChainBus> ModbusTarget for Bridge<B> {
 
     fn ext_write(&mut self, axis: usize, address: u16, data: &[u16]) -> Result<(), ExtError> {
         self.heard(Bus::Modbus);
-        Bridge::ext_write(self, axis, address, data)
+        Bridge::ext_write_from(self, Bus::Modbus, axis, address, data)
     }
 }

@@ -213,7 +213,7 @@ impl<B: ChainBus> Bridge<B> {
         quantity: u8,
     ) -> InReport {
         let r = match data.get(..usize::from(quantity)).filter(|d| !d.is_empty()) {
-            Some(d) => self.ext_write(k, address, d),
+            Some(d) => self.ext_write_from(Bus::Usb, k, address, d),
             None => Err(ExtError::IllegalValue),
         };
         InReport::new(0, cmd::EXT_WRITE, axis, ext_status(r))

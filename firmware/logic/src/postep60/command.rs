@@ -114,6 +114,21 @@ impl Request {
                 | Request::SetModeUsb(_)
         )
     }
+
+    /// Refused for a member of a coordinated move under way: what would
+    /// move it on its own, or change its unit, position or limits (a Stop,
+    /// a soft stop and sleep are taken: they stop the group).
+    pub const fn leaves_a_group(&self) -> bool {
+        self.commands_motion()
+            || matches!(
+                self,
+                Request::SetStepMode(_)
+                    | Request::SetZero
+                    | Request::SetMaxSpeed(_)
+                    | Request::SetAcceleration(_)
+                    | Request::SetDeceleration(_)
+            )
+    }
 }
 
 /// USB 0xB1 Write trajectory data.
@@ -194,6 +209,10 @@ pub enum CommandError {
     /// The bridge runs in its boot mode (after USB 0x02): no motion, no
     /// settings changes until the application is restarted.
     BootMode,
+    /// The axis is a member of a coordinated move under way (extension
+    /// 0x08nn): it takes stops, not motion of its own, until the move is
+    /// over.
+    Grouped,
 }
 
 impl CommandError {
@@ -209,6 +228,8 @@ impl CommandError {
             CommandError::BadAddress => 6,
             CommandError::Busy => 7,
             CommandError::BootMode => 8,
+            // (9 to 13 are the USB outcomes of the transport's own refusals.)
+            CommandError::Grouped => 14,
         }
     }
 }

@@ -451,6 +451,12 @@ impl Device {
         })
     }
 
+    /// Motion requests would be taken now: awake, no stopping fault
+    /// latched.
+    pub fn can_move(&self) -> bool {
+        self.blocked().is_ok()
+    }
+
     /// Whether the axis runs (not asleep).
     pub fn is_running(&self) -> bool {
         self.running

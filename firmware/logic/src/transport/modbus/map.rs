@@ -56,7 +56,8 @@ impl Exception {
             | CommandError::Unsupported
             | CommandError::BadAddress
             | CommandError::Busy
-            | CommandError::BootMode => Some(Exception::ServerDeviceFailure),
+            | CommandError::BootMode
+            | CommandError::Grouped => Some(Exception::ServerDeviceFailure),
         }
     }
 }

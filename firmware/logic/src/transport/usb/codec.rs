@@ -55,6 +55,8 @@ pub mod status {
     pub const REFUSED: u8 = 12;
     /// Extension space: the chip did not answer in time.
     pub const TIMEOUT: u8 = 13;
+    /// The axis is a member of a coordinated move under way.
+    pub const GROUPED: u8 = 14;
 }
 
 /// Registers one USB extension access carries (0xE0/0xE1).

@@ -1,0 +1,177 @@
+//! Extension 0x08nn over Modbus RTU: a coordinated move described, started,
+//! watched and stopped by a master, and the single-axis commands its
+//! members refuse while it runs.
+
+use bridge_logic::postep60::Settings;
+use host_tests::modbus_bench::ModbusBench;
+
+const CMD: u16 = 0x0800;
+const ABORT: u16 = 0x0801;
+const MEMBERS: u16 = 0x0802;
+const REFUSAL: u16 = 0x0803;
+const PATH: u16 = 0x0804;
+const TICKS: u16 = 0x080A;
+const TARGETS: u16 = 0x0810;
+
+const DONE: u16 = 5;
+const ABORTED: u16 = 6;
+/// Modbus exceptions.
+const ILLEGAL_ADDRESS: u8 = 0x02;
+const SERVER_FAILURE: u8 = 0x04;
+
+/// Three axes in 1/16 (the factory step mode) at 2 000 steps/s, 20 000
+/// steps/s².
+fn bench() -> ModbusBench {
+    let mut s = Settings::FACTORY;
+    for a in s.axes.iter_mut() {
+        a.max_speed = 2_000;
+        a.acc = 20_000;
+        a.dec = 20_000;
+    }
+    ModbusBench::new(3, s)
+}
+
+fn words(v: i32) -> [u16; 2] {
+    let v = v as u32;
+    [(v >> 16) as u16, v as u16]
+}
+
+/// Members `mask`, no path limit, targets of axes 0..3.
+fn describe(b: &mut ModbusBench, mask: u16, targets: [i32; 3]) {
+    b.write_multiple(1, MEMBERS, &[mask]).unwrap();
+    b.write_multiple(1, PATH, &[0; 6]).unwrap();
+    let regs: Vec<u16> = targets.iter().flat_map(|t| words(*t)).collect();
+    b.write_multiple(1, TARGETS, &regs).unwrap();
+}
+
+fn state(b: &mut ModbusBench) -> u16 {
+    b.read(1, CMD, 1).unwrap()[0]
+}
+
+/// Poll the state every 10 ms until it is `want` (panics after `cap_ms`).
+fn wait_for(b: &mut ModbusBench, want: u16, cap_ms: u64) {
+    for _ in 0..cap_ms / 10 {
+        if state(b) == want {
+            return;
+        }
+        b.run(10);
+    }
+    panic!("state {} after {cap_ms} ms, not {want}", state(b));
+}
+
+#[test]
+fn a_move_written_over_modbus_arrives_on_every_member() {
+    let mut b = bench();
+    describe(&mut b, 0b111, [3000, -1500, 10]);
+    assert_eq!(
+        b.read(1, TARGETS, 6).unwrap(),
+        [0, 3000, 0xFFFF, 0xFA24, 0, 10]
+    );
+    b.write(1, CMD, 1).unwrap();
+    wait_for(&mut b, DONE, 5_000);
+    assert_eq!(
+        (b.position(1), b.position(2), b.position(3)),
+        (3000, -1500, 10)
+    );
+    assert_eq!(b.read(1, ABORT, 1).unwrap(), [0]);
+    let ticks = b.read(1, TICKS, 2).unwrap();
+    assert!(ticks[1] > 1000, "the line ran {ticks:?} ticks");
+}
+
+#[test]
+fn a_member_refuses_a_move_of_its_own_while_the_group_runs_and_says_why() {
+    let mut b = bench();
+    describe(&mut b, 0b011, [3000, 3000, 0]);
+    b.write(1, CMD, 1).unwrap();
+    b.run(20);
+    assert_eq!(b.set_position(2, 0), Err(SERVER_FAILURE));
+    // Diagnostics 0x0349: axis 1 · 256 + 14 (in a coordinated move).
+    assert_eq!(b.read(1, 0x0349, 1).unwrap(), [0x010E]);
+    // Not a member: moves as usual.
+    assert_eq!(b.set_position(3, 50), Ok(()));
+    wait_for(&mut b, DONE, 5_000);
+    assert_eq!(b.position(2), 3000);
+    assert_eq!(b.set_position(2, 0), Ok(()));
+}
+
+#[test]
+fn the_group_stop_brakes_every_member_and_reports_it() {
+    let mut b = bench();
+    describe(&mut b, 0b111, [6000, 3000, -6000]);
+    b.write(1, CMD, 1).unwrap();
+    b.run(300);
+    b.write(1, CMD, 0).unwrap();
+    wait_for(&mut b, ABORTED, 2_000);
+    assert_eq!(b.read(1, ABORT, 1).unwrap(), [0xFF01]);
+    let p = [b.position(1), b.position(2), b.position(3)];
+    assert!(p[0] > 0 && p[0] < 6000, "{p:?}");
+    // On the line: axis 1 half of axis 0, axis 2 its mirror (±1 step).
+    assert!(
+        (p[1] * 2 - p[0]).abs() <= 2 && (p[2] + p[0]).abs() <= 1,
+        "{p:?}"
+    );
+    b.run(200);
+    assert_eq!([b.position(1), b.position(2), b.position(3)], p, "rests");
+}
+
+#[test]
+fn a_soft_stop_of_one_member_stops_the_whole_group() {
+    let mut b = bench();
+    describe(&mut b, 0b111, [6000, 3000, -6000]);
+    b.write(1, CMD, 1).unwrap();
+    b.run(300);
+    // A soft stop of axis 2 (I2C's extension 0x71 and the watchdog's
+    // soft stop reach the axis as this request).
+    b.bridge
+        .request(2, bridge_logic::postep60::Request::SoftStop)
+        .unwrap();
+    wait_for(&mut b, ABORTED, 2_000);
+    assert_eq!(b.read(1, ABORT, 1).unwrap(), [0x0201]);
+}
+
+#[test]
+fn a_stop_of_one_member_stops_every_member_at_once() {
+    let mut b = bench();
+    describe(&mut b, 0b111, [6000, 3000, -6000]);
+    b.write(1, CMD, 1).unwrap();
+    b.run(300);
+    // 0x5F Stop to axis 1 (id 2): taken, not refused.
+    b.write(2, 0x5F, 1).unwrap();
+    wait_for(&mut b, ABORTED, 2_000);
+    assert_eq!(b.read(1, ABORT, 1).unwrap(), [0x0102]);
+}
+
+#[test]
+fn a_start_is_refused_while_a_move_runs_or_a_member_is_not_ready() {
+    let mut b = bench();
+    describe(&mut b, 0b011, [3000, 3000, 0]);
+    b.write(1, CMD, 1).unwrap();
+    b.run(20);
+    assert_eq!(b.write(1, CMD, 1), Err(SERVER_FAILURE));
+    assert_eq!(b.read(1, REFUSAL, 1).unwrap(), [1]);
+    // The description is fixed while the move is under way.
+    assert_eq!(b.write_multiple(1, MEMBERS, &[1]), Err(SERVER_FAILURE));
+    wait_for(&mut b, DONE, 5_000);
+    // Axis 2 asleep (0x03 0x0F): not ready.
+    b.write(3, 0x03, 0x0F).unwrap();
+    b.run(20);
+    describe(&mut b, 0b111, [0, 0, 100]);
+    assert_eq!(b.write(1, CMD, 1), Err(SERVER_FAILURE));
+    assert_eq!(b.read(1, REFUSAL, 1).unwrap(), [0x0203]);
+    // A member past the chain.
+    b.write_multiple(1, MEMBERS, &[0b1001]).unwrap();
+    assert_eq!(b.write(1, CMD, 1), Err(SERVER_FAILURE));
+    assert_eq!(b.read(1, REFUSAL, 1).unwrap(), [2]);
+}
+
+#[test]
+fn half_a_32_bit_value_and_the_read_only_words_are_illegal_addresses() {
+    let mut b = bench();
+    assert_eq!(b.write(1, TARGETS + 1, 5), Err(ILLEGAL_ADDRESS));
+    assert_eq!(b.write_multiple(1, TARGETS, &[5]), Err(ILLEGAL_ADDRESS));
+    assert_eq!(b.write(1, ABORT, 0), Err(ILLEGAL_ADDRESS));
+    assert_eq!(b.write(1, TICKS, 0), Err(ILLEGAL_ADDRESS));
+    assert_eq!(b.write_multiple(1, CMD, &[1, 0]), Err(ILLEGAL_ADDRESS));
+    assert_eq!(b.read(1, 0x0820, 1), Err(ILLEGAL_ADDRESS));
+    assert_eq!(b.write(1, CMD, 2), Err(0x03));
+}
