@@ -19,7 +19,12 @@
 //! timeouts, and a Stop, soft stop, Set zero, sleep, abort or chip reset in
 //! every phase), BINx presses, sleep with a WH register written while
 //! asleep and a wake right after, chip resets, limit changes and, on some
-//! runs, the communication watchdog tripping on a silent Modbus. Axes run
+//! runs, the communication watchdog tripping on a silent Modbus, and
+//! coordinated moves (extension 0x08nn) of random groups of position-mode
+//! axes, interrupted by all of the above on any member: the oracle's own
+//! rule is that a stop of any kind on a member of a running group stops
+//! every member (each then rests until a new motion command), and that a
+//! group that is not interrupted lands every member on its target. Axes run
 //! in position, BINx, auto run (with and without a run/stop switch) and
 //! step-control modes.
 //!
@@ -43,6 +48,11 @@ use host_tests::sim_bridge::{chip, chip_mut, new_bridge_at, overlapped_in};
 use stepbridge_sim::{Fault, HomeCam, SimChain};
 
 const BOARD: PowerStage = PowerStage::REFERENCE;
+/// Coordinated-move registers (extension 0x08nn).
+const COORD_CMD: u16 = 0x0800;
+const COORD_MEMBERS: u16 = 0x0802;
+const COORD_PATH: u16 = 0x0804;
+const COORD_TARGETS: u16 = 0x0810;
 /// Homing registers (extension 0x04nn).
 const HOMING_CMD: u16 = 0x0400;
 const HOMING_RESULT: u16 = 0x0401;
@@ -172,6 +182,11 @@ struct Counts {
     trips: u64,
     switch_stops: u64,
     interruptions: [u64; 6],
+    /// Coordinated moves accepted, their members, and the stops of a
+    /// member that stopped a running group.
+    groups: u64,
+    group_members: u64,
+    group_stops: u64,
 }
 
 struct World {
@@ -186,6 +201,8 @@ struct World {
     after_done: Vec<bool>,
     move_after_done: Vec<bool>,
     watchdog: Option<WatchdogAction>,
+    /// The members of the last coordinated move accepted (this sequence's).
+    group: Vec<usize>,
 }
 
 /// `UNASKED_TRACE=k` prints axis k's requests and the chip's commands.
@@ -302,6 +319,7 @@ impl World {
             after_done: vec![false; n],
             move_after_done: vec![false; n],
             watchdog,
+            group: Vec::new(),
         };
         for k in 0..n {
             // Auto run without a switch runs from power-up: asked for by
@@ -434,6 +452,7 @@ impl World {
                     };
                     a.expect = Expect::Held;
                     self.counts.switch_stops += 1;
+                    self.member_stopped(k);
                 }
                 _ => {}
             }
@@ -646,6 +665,13 @@ impl World {
         }
         if !ok {
             return false;
+        }
+        let stops = matches!(
+            req,
+            Request::Stop | Request::SetZero | Request::RunSleep(0x0F) | Request::SoftStop
+        );
+        if stops {
+            self.member_stopped(k);
         }
         let seen = chip(&self.bridge, k).received_count();
         let a = &mut self.ax[k];
@@ -999,6 +1025,7 @@ impl World {
     }
 
     fn chip_reset(&mut self, k: usize) {
+        self.member_stopped(k);
         self.counts.chip_resets += 1;
         let a = &mut self.ax[k];
         a.anchor = Some(a.wide);
@@ -1006,6 +1033,105 @@ impl World {
         a.faulted = true;
         a.leave = Leave::AwaitReset;
         chip_mut(&mut self.bridge, k).inject(Fault::PowerCycle);
+    }
+
+    /// The coordinated move's state as a master reads it: 1 to 4 while it
+    /// is under way.
+    fn group_running(&mut self) -> bool {
+        let mut out = [0u16];
+        let r = self.bridge.ext_read(0, COORD_CMD, &mut out);
+        r.is_ok() && (1..=4).contains(&out[0])
+    }
+
+    /// Axis `k` stopped (any stop, a reset, an end switch): if it is a
+    /// member of a running group, every other member stops too (the
+    /// oracle's rule, from the issue: a group stops as one).
+    fn member_stopped(&mut self, k: usize) {
+        if !self.group.contains(&k) || !self.group_running() {
+            return;
+        }
+        self.counts.group_stops += 1;
+        let now = self.now();
+        for m in self.group.clone() {
+            if m == k {
+                continue;
+            }
+            let a = &mut self.ax[m];
+            a.expect = Expect::Held;
+            if !matches!(a.leave, Leave::Rest { .. } | Leave::AwaitSwitchStop { .. }) {
+                a.leave = Leave::Soft {
+                    still_ms: 0,
+                    since_ms: now,
+                };
+            }
+        }
+    }
+
+    /// A coordinated move over Modbus of a random group of the
+    /// position-mode axes (those awake, unfaulted, not homing), each to a
+    /// target near it; the oracle follows it if it was accepted.
+    fn coordinated_move(&mut self, rng: &mut Rng) {
+        let ready: Vec<usize> = (0..self.n())
+            .filter(|&k| {
+                let a = &self.ax[k];
+                a.kind == Kind::Position && !a.asleep && !a.faulted && !a.homing
+            })
+            .collect();
+        let members: Vec<usize> = ready.into_iter().filter(|_| rng.below(3) != 0).collect();
+        if members.is_empty() {
+            return;
+        }
+        let mut targets = [0i64; 8];
+        let mut mask = 0u16;
+        for &k in &members {
+            let per_full = 1i64 << self.ax[k].mode;
+            let span = per_full * rng.range(0, 400);
+            targets[k] = (self.position(k) + rng.range(-span, span)).clamp(-(1 << 24), 1 << 24);
+            mask |= 1 << k;
+        }
+        let path: u32 = if rng.below(2) == 0 {
+            0
+        } else {
+            rng.range(100, 20_000) as u32
+        };
+        let regs: Vec<u16> = targets
+            .iter()
+            .flat_map(|t| [(*t as u32 >> 16) as u16, *t as u16])
+            .collect();
+        let b = &mut self.bridge;
+        let described = b
+            .ext_write_from(Bus::Modbus, 0, COORD_MEMBERS, &[mask])
+            .is_ok()
+            && b.ext_write_from(
+                Bus::Modbus,
+                0,
+                COORD_PATH,
+                &[(path >> 16) as u16, path as u16, 0, 0, 0, 0],
+            )
+            .is_ok()
+            && b.ext_write_from(Bus::Modbus, 0, COORD_TARGETS, &regs)
+                .is_ok();
+        assert!(described, "the description is taken while no move runs");
+        let ok = b.ext_write_from(Bus::Modbus, 0, COORD_CMD, &[1]).is_ok();
+        if trace(members[0]) {
+            println!(
+                "t={} coordinated move {members:?} to {targets:?} path {path}: {ok}",
+                self.now()
+            );
+        }
+        if !ok {
+            return;
+        }
+        self.counts.groups += 1;
+        self.counts.group_members += members.len() as u64;
+        for &k in &members {
+            let a = &mut self.ax[k];
+            a.expect = Expect::At(targets[k]);
+            a.leave = Leave::Free;
+            a.moved_by_modbus = true;
+            self.counts.moves += 1;
+        }
+        self.group = members;
     }
 
     fn move_somewhere(&mut self, k: usize, rng: &mut Rng) {
@@ -1022,6 +1148,10 @@ impl World {
 /// time, then everything back to normal, settle and check.
 fn sequence(w: &mut World, rng: &mut Rng, seq: usize) {
     let n = w.n();
+    w.group.clear();
+    if rng.below(3) == 0 {
+        w.coordinated_move(rng);
+    }
     for k in 0..n {
         match rng.below(20) {
             0..=7 => w.drive(k, rng),
@@ -1126,7 +1256,8 @@ fn random_run(n: usize, sequences: usize, seed: u64, tick_us: u32) -> World {
          timeout, disabled, aborted, fault, not ready, stuck, unbounded] {:?}, moves after done {} \
          ({} uninterrupted, {} of them arrived), position 0 at most {} µsteps off the edge, at most {} µsteps into the cam; \
          BINx presses {}, WH writes asleep {}, chip resets {}, watchdog trips {}, end-switch stops {}, \
-         interruptions [stop, soft, zero, sleep, abort, reset] {:?}",
+         interruptions [stop, soft, zero, sleep, abort, reset] {:?}; coordinated moves {} ({} members, \
+         {} stopped by a member)",
         1_000_000 / tick_us,
         if w.bridge.is_overlapped() { " (overlapped)" } else { "" },
         w.now(),
@@ -1147,6 +1278,9 @@ fn random_run(n: usize, sequences: usize, seed: u64, tick_us: u32) -> World {
         c.trips,
         c.switch_stops,
         c.interruptions,
+        c.groups,
+        c.group_members,
+        c.group_stops,
     );
     for v in w.violations.iter().take(12) {
         println!("  {v}");

@@ -306,24 +306,33 @@ impl CoordRun {
             CoordState::Starting | CoordState::Running | CoordState::Stopping => {
                 self.lead_step(axes)
             }
-            CoordState::Settling => {
-                let rest = self
-                    .member_list()
-                    .iter()
-                    .all(|&k| axes.get(usize::from(k)).is_none_or(|a| a.is_at_rest()));
-                if rest {
-                    if self.abort.is_none() {
-                        self.abort = self.missed(axes);
-                    }
-                    self.state = if self.abort.is_some() {
-                        CoordState::Aborted
-                    } else {
-                        CoordState::Done
-                    };
-                }
-            }
+            CoordState::Settling => self.settle(axes),
             CoordState::Idle | CoordState::Done | CoordState::Aborted => {}
         }
+    }
+
+    /// The line is over: once every member rests (checked again after the
+    /// axes planned, when a landing has just been confirmed), the move is
+    /// done, or aborted if it was stopped or a member missed its target.
+    pub fn settle(&mut self, axes: &[Axis]) {
+        if self.state != CoordState::Settling {
+            return;
+        }
+        let rest = self
+            .member_list()
+            .iter()
+            .all(|&k| axes.get(usize::from(k)).is_none_or(|a| a.is_at_rest()));
+        if !rest {
+            return;
+        }
+        if self.abort.is_none() {
+            self.abort = self.missed(axes);
+        }
+        self.state = if self.abort.is_some() {
+            CoordState::Aborted
+        } else {
+            CoordState::Done
+        };
     }
 
     fn lead_step(&mut self, axes: &mut [Axis]) {

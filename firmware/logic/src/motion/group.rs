@@ -174,6 +174,7 @@ impl AxisGroup {
             plan.stream_end();
             self.plained = self.plained.wrapping_add(1);
             set(&mut self.plain, plain_slot, true);
+            self.coord.settle(&self.axes);
             return Ok(plan);
         }
         set(&mut self.plain, plain_slot, false);
@@ -182,6 +183,8 @@ impl AxisGroup {
         for (d, axis) in self.axes.iter_mut().enumerate() {
             axis.plan(|cmd| batch.push(d, cmd).is_ok());
         }
+        // (A landing confirmed in this plan ends a coordinated move now.)
+        self.coord.settle(&self.axes);
         plan.schedule(batch)?;
         Ok(plan)
     }
