@@ -12,7 +12,8 @@ use super::*;
 const N: f64 = 20_000.0;
 
 /// The image's markers: counters 1–3 the cruise tick's parts, 4 the profile
-/// generator, 5 the calibration, 6–8 the moves tick's parts.
+/// generator, 5 the calibration, 6–8 the moves tick's parts, 9–11 the
+/// coordinated tick's.
 const RUN: Run = Run {
     image: Image::Bench("tick-armcount", &["sim"]),
     marks: &[
@@ -25,6 +26,9 @@ const RUN: Run = Run {
         "armcost_mark_prepare2",
         "armcost_mark_run2",
         "armcost_mark_finish2",
+        "armcost_mark_prepare3",
+        "armcost_mark_run3",
+        "armcost_mark_finish3",
     ],
     dump: "armcost_mark_dump",
     epoch: Some("armcost_epoch"),
@@ -56,6 +60,8 @@ pub fn tick_cpu(args: &[String]) -> Result {
     let total = cruise_results(&c, &tick, profile);
     let moves: Vec<Stats> = (6..=8).map(|k| stats(&d, &c, k, N)).collect();
     let (m_cyc, w_cyc) = moves_results(&c, &s, &moves);
+    let coord: Vec<Stats> = (9..=11).map(|k| stats(&d, &c, k, N)).collect();
+    let c_cyc = coord_results(&c, &coord, total);
     // Where issue 22 started (a5b142a, this bench's cruise workload, code
     // in flash), to compare with the lines above (docs/performance.md).
     println!(
@@ -68,7 +74,22 @@ pub fn tick_cpu(args: &[String]) -> Result {
     };
     // The fit takes the worst tick (every axis starting at once), so that
     // a chain it fits holds every tick, not only the mean one.
-    cost::check(name, total.max(m_cyc).max(w_cyc), write_flag(args))
+    cost::check(name, total.max(m_cyc).max(w_cyc).max(c_cyc), write_flag(args))
+}
+
+/// The coordinated workload's RESULT line (beside the single-axis cruise
+/// tick, `cruise_cycles`): its worst tick's cycles.
+fn coord_results(c: &Counts, coord: &[Stats], cruise_cycles: f64) -> f64 {
+    let (insn, cyc, worst) = workload(c, coord, 9);
+    let w_cyc = worst * cyc / insn.max(1.0);
+    println!(
+        "RESULT coordinated workload (8 axes in one straight-line move, led every tick): {insn:.0} instructions per tick, {:.0} per axis-tick ({:.2} x the single-axis cruise tick's cycles); {cyc:.0} cycles; worst tick at most {worst:.0} instructions (~{w_cyc:.0} cycles), CPU share at 5 kHz {:.1} % (mean) / {:.1} % (worst)",
+        insn / 8.0,
+        cyc / cruise_cycles.max(1.0),
+        share(cyc, 5000),
+        share(w_cyc, 5000)
+    );
+    w_cyc
 }
 
 /// ART misses per tick of the three parts, warm and cold, each as
@@ -198,7 +219,11 @@ fn moves_results(c: &Counts, cruise: &[Stats], moves: &[Stats]) -> (f64, f64) {
     println!(
         "RESULT worst tick: {w:.0} instructions ({:.0} per axis-tick; tick {at} of the bench, {}), ~{w_cyc:.0} cycles, CPU share at 5 kHz {:.1} %; each part's largest summed: cruise {c_worst:.0}, moves {worst:.0}",
         w / 8.0,
-        if at <= N as u64 { "cruise" } else { "moves" },
+        match at {
+            a if a <= N as u64 => "cruise",
+            a if a <= 2 * N as u64 => "moves",
+            _ => "coordinated",
+        },
         share(w_cyc, 5000)
     );
     (m_cyc, w_cyc)

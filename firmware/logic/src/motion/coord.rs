@@ -1,10 +1,10 @@
 //! Coordinated moves, the pure parts: the shared profile of a straight-line
 //! move of several axes ([`Line`]), the speed through a junction of two
 //! segments ([`junction_speed`]) and the look-ahead over queued segments
-//! ([`plan_speeds`]). Not reachable from any bus yet: the group's per-tick
-//! streaming, the path queue that runs segments with their exit speeds,
-//! group stops and the register block are the next steps (listed as missing
-//! in the README).
+//! ([`plan_speeds`]). A [`Line`] runs on the chips through
+//! [`crate::motion::coordinated`] (extension 0x08nn); the path queue that
+//! would run segments with their exit speeds is not built yet (listed as
+//! missing in the README).
 //!
 //! # What it guarantees
 //!

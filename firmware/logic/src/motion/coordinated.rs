@@ -17,9 +17,10 @@
 //!   any member (a bus's SoftStop, the communication watchdog's soft stop),
 //!   brakes the shared profile with the line's deceleration: every member
 //!   stops on the line, and holds where its chip stops. A member that
-//!   leaves the line at once — a Stop, an end switch, sleep, Set zero, a
-//!   step-mode change, a fault, a chip reset, a chain error — stops every
-//!   other member at once too (HardStop: as close to the line as the chips
+//!   leaves the line at once — a Stop, an end switch, sleep, a fault, a
+//!   chip reset, a chain error (or a command the bridge's members refuse:
+//!   a move of its own, Set zero, a step-mode change) — stops every other
+//!   member at once too (HardStop: as close to the line as the chips
 //!   allow), and the group reports which member and why. After any of
 //!   them every member rests until a new motion command.
 
@@ -53,8 +54,7 @@ pub enum CoordState {
 pub enum AbortReason {
     /// The group's stop, or a soft stop asked of a member.
     Stopped,
-    /// A member stopped at once on its own (a Stop, an end switch, sleep,
-    /// Set zero, a step-mode change).
+    /// A member stopped at once on its own (a Stop, an end switch, sleep).
     MemberStopped,
     /// A member's chip failed: its fault.
     Fault(AxisFault),

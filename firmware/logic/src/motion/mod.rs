@@ -1,8 +1,9 @@
 //! Motion: the trapezoidal profile generator ([`profile`]), the axis output
 //! stage that turns its setpoints into chain commands ([`axis`]), homing
-//! ([`homing`]), the group of axes ticked together ([`group`]) and the
-//! shared profile of a coordinated straight-line move ([`coord`], not yet
-//! reachable from a bus). Knows nothing of bytes on any bus.
+//! ([`homing`]), the group of axes ticked together ([`group`]), the
+//! shared profile of a coordinated straight-line move ([`coord`]) and the
+//! move running through the group's axes ([`coordinated`]). Knows nothing
+//! of bytes on any bus.
 
 pub mod axis;
 pub mod coord;

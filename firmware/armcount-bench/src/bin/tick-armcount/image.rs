@@ -26,6 +26,9 @@ marker!(armcost_mark_dump, 0x7777_0006u32);
 marker!(armcost_mark_prepare2, 0x2222_0007u32);
 marker!(armcost_mark_run2, 0x3333_0008u32);
 marker!(armcost_mark_finish2, 0x4444_0009u32);
+marker!(armcost_mark_prepare3, 0x2222_000Bu32);
+marker!(armcost_mark_run3, 0x3333_000Cu32);
+marker!(armcost_mark_finish3, 0x4444_000Du32);
 // Not a counter: ends a tick (the plugin's `epoch`), run while counting is off.
 marker!(armcost_epoch, 0x8888_000Au32);
 
@@ -198,6 +201,41 @@ fn moves(group: &mut AxisGroup, chain: &mut Chain<Bus>, tick_ns: u64) {
     chain.bus_mut().counting = false;
 }
 
+/// The coordinated workload (counters 9–11): the 8 axes in one
+/// coordinated move (extension 0x08nn) far beyond `N` ticks, from its
+/// start: every tick leads every axis along the line.
+fn coordinated(group: &mut AxisGroup, chain: &mut Chain<Bus>, tick_ns: u64) {
+    let members = [0, 1, 2, 3, 4, 5, 6, 7];
+    let mut targets = [0i64; 8];
+    for (k, t) in targets.iter_mut().enumerate() {
+        let here = group.axis(k).map_or(0, |a| a.required_position());
+        let d = (1i64 << 28) >> (k % 3);
+        *t = if k % 2 == 0 { here + d } else { here - d };
+    }
+    let fast = Limits {
+        max_speed: u32::MAX,
+        acc: u32::MAX,
+        dec: u32::MAX,
+    };
+    if group.coord_start(&members, &targets, fast).is_err() {
+        semihosting::process::exit(4)
+    }
+    let bus = chain.bus_mut();
+    bus.resume = armcost_mark_run3;
+    bus.counting = true;
+    let marks = Marks {
+        prepare: armcost_mark_prepare3,
+        run: armcost_mark_run3,
+        finish: armcost_mark_finish3,
+    };
+    for _ in 0..N {
+        tick(group, chain, &marks, tick_ns);
+        armcost_mark_off();
+        armcost_epoch();
+    }
+    chain.bus_mut().counting = false;
+}
+
 /// Counter 4: `Profile::tick` of a long move, on its own.
 fn profile_ticks() {
     let mut p = Profile::new(TICK_US, limits());
@@ -229,6 +267,8 @@ fn main() -> ! {
     cruise(&mut group, &mut chain, tick_ns);
     stop_all(&mut group, &mut chain, tick_ns);
     moves(&mut group, &mut chain, tick_ns);
+    stop_all(&mut group, &mut chain, tick_ns);
+    coordinated(&mut group, &mut chain, tick_ns);
     profile_ticks();
     armcost_mark_dump();
     semihosting::process::exit(0)
