@@ -66,3 +66,43 @@ fn a_platform_with_a_costlier_tick_fits_its_own_cost() {
     assert_eq!(b.axes(), 4);
     assert_eq!(b.chain().bus().windows(), windows_of_one_detection(4));
 }
+
+/// The README's control-tick table as the rate module computes it: one row
+/// per chain length (computation, batch, in a row, overlapped, the rate).
+fn control_tick_table(build_hz: u32) -> Vec<String> {
+    let bus = rate::BOARD_BUS;
+    let us = |ns: u64| format!("{:.1} µs", ns as f64 / 1000.0);
+    (1..=8)
+        .map(|n| {
+            let need = rate::need(n);
+            let r = rate::fit(build_hz, n);
+            let mode = if r.overlapped {
+                "overlapped"
+            } else {
+                "in a row"
+            };
+            format!(
+                "| {n} | {} | {} | {} µs | {} µs | {} kHz, {mode} |",
+                us(rate::compute_ns(n)),
+                us(bus.batch_ns(rate::STREAM_WINDOWS, n as u32)),
+                need.serial_ns.div_ceil(1000),
+                need.overlapped_ns.div_ceil(1000),
+                r.hz / 1000
+            )
+        })
+        .collect()
+}
+
+#[test]
+fn the_readme_states_the_rate_every_chain_length_runs_at() {
+    let readme = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../README.md"))
+        .expect("README");
+    let table = control_tick_table(5000);
+    for row in &table {
+        assert!(
+            readme.contains(row.as_str()),
+            "README's control-tick table lacks (or differs from) the row\n{row}\nthe table:\n{}",
+            table.join("\n")
+        );
+    }
+}

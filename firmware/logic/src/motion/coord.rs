@@ -27,6 +27,7 @@
 //!   profile's `i128` in 2⁻³³ steps; `|dᵢ| ≤ 2³²` keeps `dᵢ · s` below 2⁹⁸.
 //!   A longer component is refused ([`CoordError::TooLong`]).
 
+use super::divisor::mul_wide;
 use super::profile::{round_fine, Limits, Profile, POS_FRAC};
 use crate::powerstep::chain::MAX_DEVICES;
 
@@ -87,6 +88,12 @@ pub struct Line {
     /// an axis held between two of its steps), shrunk to 0 along the line
     /// ([`Line::with_offsets`]).
     offset: [i64; MAX_AXES],
+    /// `dₖ · 2⁶² / L`, toward zero (|dₖ| ≤ L: at most 2⁶²): axis k's
+    /// share of the path's velocity, in Q62.
+    ratio: [i64; MAX_AXES],
+    /// `⌊2⁶² / L⌋` (0 for a line of no length): `s / L` in Q62 by a
+    /// multiply ([`Line::lambda`]).
+    inv: u64,
     /// `L`, steps (0: nothing moves).
     length: i64,
     path: Profile,
@@ -260,6 +267,16 @@ impl Line {
         let length = checked_length(deltas, &[target.len(), limits.len()])?;
         let mut profile = Profile::new(tick_us, path_limits(deltas, length, limits, path));
         // length ≤ 2³²: fits i64.
+        let inv = (1u64 << 62).checked_div(length).unwrap_or(0);
+        let mut ratio = [0i64; MAX_AXES];
+        for (r, d) in ratio.iter_mut().zip(deltas) {
+            // |d| ≤ L ≤ 2³²: |d| · 2⁶² < 2⁹⁵, the quotient ≤ 2⁶² (0 for
+            // a line of no length).
+            let q = (u128::from(d.unsigned_abs()) << 62)
+                .checked_div(u128::from(length))
+                .unwrap_or(0) as i64;
+            *r = if *d < 0 { q.wrapping_neg() } else { q };
+        }
         let length = length as i64;
         profile.move_to(length);
         Ok(Line {
@@ -267,6 +284,8 @@ impl Line {
             start: s,
             delta,
             offset: [0; MAX_AXES],
+            ratio,
+            inv,
             length,
             path: profile,
         })
@@ -316,51 +335,63 @@ impl Line {
         self.path.position_fine()
     }
 
-    /// Axis `k`'s position, 2⁻³³ steps, exact but for the division by `L`
-    /// (rounded toward zero: under 2⁻³³ steps). `None` past the last axis.
-    // |d| ≤ 2³², s ≤ 2⁶⁵: the product fits i128.
-    #[allow(clippy::arithmetic_side_effects)]
-    pub fn position_fine(&self, k: usize) -> Option<i128> {
-        let (a, d) = (self.start.get(..self.n)?.get(k)?, self.delta.get(k)?);
-        let o = i128::from(self.offset.get(k).copied().unwrap_or(0));
-        let a = (i128::from(*a) << POS_FRAC) + o;
+    /// How far along the line the path is, `s / L` in Q62 (2⁶² at the
+    /// target, exactly): one multiply per tick, shared by every axis
+    /// ([`Line::point`]).
+    pub fn lambda(&self) -> u64 {
         let s = self.path.position_fine();
-        // |o| ≤ 2³², so o · s fits as d · s does.
-        let o_share = if o == 0 || self.length == 0 {
-            0
-        } else {
-            (o * s) / (i128::from(self.length) << POS_FRAC)
-        };
-        Some(a + self.share(*d, s) - o_share)
-    }
-
-    /// Axis `k`'s velocity, 2⁻³² steps per tick: its share `dₖ / L` of the
-    /// path's, rounded toward zero. `None` past the last axis.
-    pub fn velocity_internal(&self, k: usize) -> Option<i64> {
-        let d = self.start.get(..self.n).and(self.delta.get(k))?;
-        let v = self.share(*d, i128::from(self.path.velocity_internal()));
-        // |d / L| ≤ 1: no larger than the path's velocity, an i64.
-        i64::try_from(v).ok()
-    }
-
-    /// `d · x / L`, rounded toward zero (0 for a line of no length): by the
-    /// 32-bit divide where `L` fits it (`L ≤ 2³²`, so but for `L = 2³²`).
-    // |d| ≤ 2³², |x| ≤ 2⁶⁶: the product fits i128.
-    #[allow(clippy::arithmetic_side_effects)]
-    fn share(&self, d: i64, x: i128) -> i128 {
-        if self.length == 0 {
+        let end = i128::from(self.length) << POS_FRAC;
+        if s <= 0 || self.length == 0 {
             return 0;
         }
-        let p = i128::from(d) * x;
-        let m = match u32::try_from(self.length) {
-            Ok(l) => super::divisor::div_u128_by_u32(p.unsigned_abs(), l) as i128,
-            Err(_) => p.unsigned_abs() as i128 / i128::from(self.length),
-        };
-        if p < 0 {
-            -m
-        } else {
-            m
+        if s >= end {
+            return 1 << 62;
         }
+        // s < L · 2³³ ≤ 2⁶⁵ and inv ≤ 2⁶² / L: the product is below 2¹²⁷,
+        // the result below 2⁶².
+        let s = s as u128;
+        let lo = mul_wide(s as u64, self.inv);
+        let hi = mul_wide((s >> 64) as u64, self.inv) << 64;
+        (lo.wrapping_add(hi) >> POS_FRAC) as u64
+    }
+
+    /// Axis `k`'s point of the line at `lambda` ([`Line::lambda`]): its
+    /// position (2⁻³³ steps) and velocity (2⁻³² steps per tick, its share
+    /// of the path's, never above it). Exact at both ends; in between
+    /// within 2⁻²⁹ steps of `startₖ + offsetₖ · (1 − s/L) + dₖ · s/L`.
+    /// `None` past the last axis.
+    // |d| ≤ 2³², |offset| ≤ 2³², lambda ≤ 2⁶²: every product below 2⁹⁵.
+    #[allow(clippy::arithmetic_side_effects)]
+    pub fn point(&self, k: usize, lambda: u64) -> Option<(i128, i64)> {
+        let (a, d) = (self.start.get(..self.n)?.get(k)?, self.delta.get(k)?);
+        let o = self.offset.get(k).copied().unwrap_or(0);
+        let r = self.ratio.get(k).copied().unwrap_or(0);
+        let scaled = |x: i64, shift: u32| -> i128 {
+            let m = (mul_wide(x.unsigned_abs(), lambda) >> shift) as i128;
+            if x < 0 {
+                -m
+            } else {
+                m
+            }
+        };
+        // d · 2³³ · λ / 2⁶² and o · λ / 2⁶² (toward zero).
+        let pos = (i128::from(*a) << POS_FRAC) + i128::from(o) - scaled(o, 62)
+            + scaled(*d, 62 - POS_FRAC);
+        let v = self.path.velocity_internal();
+        let m = (mul_wide(v.unsigned_abs(), r.unsigned_abs()) >> 62) as i64;
+        let vel = if (v < 0) != (r < 0) { -m } else { m };
+        Some((pos, vel))
+    }
+
+    /// Axis `k`'s position, 2⁻³³ steps ([`Line::point`]). `None` past the
+    /// last axis.
+    pub fn position_fine(&self, k: usize) -> Option<i128> {
+        self.point(k, self.lambda()).map(|(p, _)| p)
+    }
+
+    /// Axis `k`'s velocity, 2⁻³² steps per tick ([`Line::point`]).
+    pub fn velocity_internal(&self, k: usize) -> Option<i64> {
+        self.point(k, self.lambda()).map(|(_, v)| v)
     }
 
     /// Decelerate along the line with the path's deceleration to a stop on

@@ -397,8 +397,9 @@ impl CoordRun {
         let Some(line) = self.line.as_ref() else {
             return;
         };
+        let lambda = line.lambda();
         for (i, k) in self.moving_members() {
-            let (Some(pos), Some(vel)) = (line.position_fine(i), line.velocity_internal(i)) else {
+            let Some((pos, vel)) = line.point(i, lambda) else {
                 continue;
             };
             if let Some(a) = axes.get_mut(k) {

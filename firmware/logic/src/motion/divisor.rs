@@ -36,6 +36,20 @@ const fn mul_hi(a: u64, b: u64) -> u64 {
     p11 + (p01 >> 32) + (p10 >> 32) + (mid >> 32)
 }
 
+/// The 128-bit product `a·b`, from four 32 × 32 → 64 products (a `u128`
+/// product is a library call on 32-bit ARM).
+pub const fn mul_wide(a: u64, b: u64) -> u128 {
+    let (a0, a1) = (a & 0xFFFF_FFFF, a >> 32);
+    let (b0, b1) = (b & 0xFFFF_FFFF, b >> 32);
+    let p00 = a0 * b0;
+    let p01 = a0 * b1;
+    let p10 = a1 * b0;
+    let p11 = a1 * b1;
+    let mid = (p00 >> 32) + (p01 & 0xFFFF_FFFF) + (p10 & 0xFFFF_FFFF);
+    let hi = p11 + (p01 >> 32) + (p10 >> 32) + (mid >> 32);
+    ((hi as u128) << 64) | ((mid << 32) | (p00 & 0xFFFF_FFFF)) as u128
+}
+
 impl Divisor {
     /// Division by `d` (0 is taken as 1: callers guard their divisors, and a
     /// division must never trap).
@@ -179,6 +193,23 @@ const fn divlu(u1: u32, u0: u32, v: u32) -> u32 {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn the_wide_product_is_the_u128_product() {
+        for (a, b) in [
+            (0u64, 0u64),
+            (u64::MAX, u64::MAX),
+            (u64::MAX, 1),
+            (0x1_0000_0000, 0xFFFF_FFFF),
+            (0x1234_5678_9ABC_DEF0, 0x0FED_CBA9_8765_4321),
+        ] {
+            assert_eq!(
+                mul_wide(a, b),
+                u128::from(a) * u128::from(b),
+                "{a:#x} · {b:#x}"
+            );
+        }
+    }
 
     #[test]
     fn small_divisors_and_edges_are_exact() {

@@ -525,6 +525,20 @@ impl Profile {
         self.led = Some((pos, vel));
     }
 
+    /// The tick of a lead ([`Profile::lead`]): its position and velocity.
+    #[inline(always)]
+    fn take_lead(&mut self) -> i64 {
+        let Some((pos, vel)) = self.led.take() else {
+            return self.vel;
+        };
+        self.pos = pos;
+        self.vel = vel;
+        if vel == 0 {
+            self.set_dec(self.dec_limit);
+        }
+        vel
+    }
+
     /// A lead given and not yet taken by a tick.
     pub fn is_led(&self) -> bool {
         self.led.is_some()
@@ -534,13 +548,8 @@ impl Profile {
     /// outside a cruise; the tests compare the two).
     #[inline(never)]
     pub(crate) fn tick_full(&mut self) -> i64 {
-        if let Some((pos, vel)) = self.led.take() {
-            self.pos = pos;
-            self.vel = vel;
-            if vel == 0 {
-                self.set_dec(self.dec_limit);
-            }
-            return vel;
+        if self.led.is_some() {
+            return self.take_lead();
         }
         let next = match self.mode {
             Mode::Hold => 0,
