@@ -34,7 +34,7 @@ pub fn hand_over_io<const N: usize>(
 
 /// The end of a transfer, to the bridge.
 pub fn report_io(
-    bridge: &mut impl Mutex<T = Bridge<ChainLink>>,
+    bridge: &mut impl Mutex<T = &'static mut Bridge<ChainLink>>,
     result: Result<WireBits, IoExtError>,
 ) {
     let taken = bridge.lock(|b| match &result {
@@ -52,7 +52,7 @@ pub fn report_io(
 /// Reprogram the I2C own addresses if the bridge's address base changed
 /// since the last call (through either bus).
 pub fn apply_address_change(
-    bridge: &mut impl Mutex<T = Bridge<ChainLink>>,
+    bridge: &mut impl Mutex<T = &'static mut Bridge<ChainLink>>,
     i2c: &mut I2cSlaveDriver,
 ) {
     if let Some((p, s)) = bridge.lock(|b| b.take_address_change().then(|| b.i2c_addresses())) {

@@ -158,8 +158,11 @@ mod app {
         /// The bridge: chain (a handle on the one chain driver, for its
         /// blocking windows), axes, PoStep60 models; bus tasks hand it
         /// bytes. The chain driver itself (the control tick's batches, run
-        /// by the DMA and TIM7 tasks) is in `platform`'s cell.
-        bridge: Bridge<ChainLink>,
+        /// by the DMA and TIM7 tasks) is in `platform`'s cell. In `init`'s
+        /// static slot (`bridge_slot`), not moved through `init`'s return
+        /// value: it is ~18 KB, and every copy on the way costs stack
+        /// (docs/performance.md, "SRAM is shared").
+        bridge: &'static mut Bridge<ChainLink>,
         /// USART2 + DE: the RS-485 line (Modbus UART task and server task).
         rs485: Rs485,
         /// Modbus RTU framing and function codes (same two tasks).
@@ -223,6 +226,7 @@ mod app {
     #[init(local = [
         io_buffers: IoExtBuffers = IoExtBuffers::new(),
         chain_buffers: ChainBuffers = ChainBuffers::new(),
+        bridge_slot: Option<Bridge<ChainLink>> = None,
     ])]
     fn init(cx: init::Context) -> (Shared, Local) {
         let dp = cx.device;
@@ -247,14 +251,14 @@ mod app {
 
         let mut store = Store::new(platform::settings_flash(dp.FLASH));
         let uid = platform::unique_id();
-        let (mut bridge, rate) = start_bridge(bus, &mut store, &boot, uid);
+        let (bridge, rate) = start_bridge(cx.local.bridge_slot, bus, &mut store, &boot, uid);
         // Connects at once; the host's traffic waits for the end of `init`.
         let otg = (dp.OTG_FS_GLOBAL, dp.OTG_FS_DEVICE, dp.OTG_FS_PWRCLK);
         let usb = platform::start_usb(otg, (pins.usb_dm, pins.usb_dp), &rcc, uid);
         let i2c_pins = (pins.host_i2c_scl, pins.host_i2c_sda);
-        let i2c = start_i2c(dp.I2C1, i2c_pins, &bridge, &mut rcc);
+        let i2c = start_i2c(dp.I2C1, i2c_pins, bridge, &mut rcc);
         let modbus_pins = (pins.modbus_tx, pins.modbus_rx, pins.modbus_de);
-        let (rs485, timing) = start_modbus(dp.USART2, modbus_pins, &bridge, &mut rcc);
+        let (rs485, timing) = start_modbus(dp.USART2, modbus_pins, bridge, &mut rcc);
         let io = IoExtPeripherals {
             spi: dp.SPI2,
             tim: dp.TIM1,
@@ -273,7 +277,7 @@ mod app {
         let io_ended_bit = io_ended_spi.clone();
         // Last: the bridge's window (short), with the first control tick at
         // most one period away.
-        arm_watchdog(&mut watchdog, &bridge);
+        arm_watchdog(&mut watchdog, bridge);
         (
             Shared {
                 bridge,
@@ -373,15 +377,16 @@ mod app {
     /// Start-up step 3: the settings, chain detection and set-up, the tick
     /// rate, and what the bridge reports about this start.
     fn start_bridge(
+        slot: &'static mut Option<Bridge<ChainLink>>,
         bus: ChainLink,
         store: &mut Store<SettingsFlash>,
         boot: &Boot,
         uid: [u32; 3],
-    ) -> (Bridge<ChainLink>, Rate) {
+    ) -> (&'static mut Bridge<ChainLink>, Rate) {
         let (settings, source) = load_settings(store);
         // A chain whose batch and computation do not fit the build's tick
         // runs at a slower one (a skipped tick would run the motors slow).
-        let (mut bridge, rate) = Bridge::new_fitted_with(
+        let (built, rate) = Bridge::new_fitted_with(
             bus,
             PowerStage::REFERENCE,
             settings,
@@ -389,6 +394,7 @@ mod app {
             TICK_HZ,
             platform::tick_need,
         );
+        let bridge = slot.insert(built);
         match bridge.chain_error() {
             None => info!("chain: {=usize} powerSTEP01", bridge.axes()),
             Some(e) => error!("chain: detection failed ({}), running with 0 axes", e),

@@ -27,7 +27,6 @@
 //!   profile's `i128` in 2⁻³³ steps; `|dᵢ| ≤ 2³²` keeps `dᵢ · s` below 2⁹⁸.
 //!   A longer component is refused ([`CoordError::TooLong`]).
 
-use super::divisor::mul_wide;
 use super::profile::{round_fine, Limits, Profile, POS_FRAC};
 use crate::powerstep::chain::MAX_DEVICES;
 
@@ -81,22 +80,22 @@ fn checked_length(deltas: &[i64], others: &[usize]) -> Result<u64, CoordError> {
 /// A coordinated move in progress (module doc).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Line {
-    n: usize,
-    start: [i64; MAX_AXES],
-    delta: [i64; MAX_AXES],
+    pub(super) n: usize,
+    pub(super) start: [i64; MAX_AXES],
+    pub(super) delta: [i64; MAX_AXES],
     /// Where each axis is beyond `start`, 2⁻³³ steps (|offset| ≤ ½ step:
     /// an axis held between two of its steps), shrunk to 0 along the line
     /// ([`Line::with_offsets`]).
-    offset: [i64; MAX_AXES],
+    pub(super) offset: [i64; MAX_AXES],
     /// `dₖ · 2⁶² / L`, toward zero (|dₖ| ≤ L: at most 2⁶²): axis k's
     /// share of the path's velocity, in Q62.
-    ratio: [i64; MAX_AXES],
+    pub(super) ratio: [i64; MAX_AXES],
     /// `⌊2⁶² / L⌋` (0 for a line of no length): `s / L` in Q62 by a
     /// multiply ([`Line::lambda`]).
-    inv: u64,
+    pub(super) inv: u64,
     /// `L`, steps (0: nothing moves).
-    length: i64,
-    path: Profile,
+    pub(super) length: i64,
+    pub(super) path: Profile,
 }
 
 /// `⌊limit · L / |d|⌋`, at most `u32::MAX` (the path limit axis `d` allows).
@@ -320,67 +319,9 @@ impl Line {
         self.path.limits()
     }
 
-    /// Advance one tick.
-    pub fn tick(&mut self) {
-        self.path.tick();
-    }
-
-    /// Every axis on its target, at rest.
-    pub fn is_done(&self) -> bool {
-        self.path.is_settled()
-    }
-
     /// The path parameter `s`, 2⁻³³ steps of the farthest axis.
     pub fn path_fine(&self) -> i128 {
         self.path.position_fine()
-    }
-
-    /// How far along the line the path is, `s / L` in Q62 (2⁶² at the
-    /// target, exactly): one multiply per tick, shared by every axis
-    /// ([`Line::point`]).
-    pub fn lambda(&self) -> u64 {
-        let s = self.path.position_fine();
-        let end = i128::from(self.length) << POS_FRAC;
-        if s <= 0 || self.length == 0 {
-            return 0;
-        }
-        if s >= end {
-            return 1 << 62;
-        }
-        // s < L · 2³³ ≤ 2⁶⁵ and inv ≤ 2⁶² / L: the product is below 2¹²⁷,
-        // the result below 2⁶².
-        let s = s as u128;
-        let lo = mul_wide(s as u64, self.inv);
-        let hi = mul_wide((s >> 64) as u64, self.inv) << 64;
-        (lo.wrapping_add(hi) >> POS_FRAC) as u64
-    }
-
-    /// Axis `k`'s point of the line at `lambda` ([`Line::lambda`]): its
-    /// position (2⁻³³ steps) and velocity (2⁻³² steps per tick, its share
-    /// of the path's, never above it). Exact at both ends; in between
-    /// within 2⁻²⁹ steps of `startₖ + offsetₖ · (1 − s/L) + dₖ · s/L`.
-    /// `None` past the last axis.
-    // |d| ≤ 2³², |offset| ≤ 2³², lambda ≤ 2⁶²: every product below 2⁹⁵.
-    #[allow(clippy::arithmetic_side_effects)]
-    pub fn point(&self, k: usize, lambda: u64) -> Option<(i128, i64)> {
-        let (a, d) = (self.start.get(..self.n)?.get(k)?, self.delta.get(k)?);
-        let o = self.offset.get(k).copied().unwrap_or(0);
-        let r = self.ratio.get(k).copied().unwrap_or(0);
-        let scaled = |x: i64, shift: u32| -> i128 {
-            let m = (mul_wide(x.unsigned_abs(), lambda) >> shift) as i128;
-            if x < 0 {
-                -m
-            } else {
-                m
-            }
-        };
-        // d · 2³³ · λ / 2⁶² and o · λ / 2⁶² (toward zero).
-        let pos = (i128::from(*a) << POS_FRAC) + i128::from(o) - scaled(o, 62)
-            + scaled(*d, 62 - POS_FRAC);
-        let v = self.path.velocity_internal();
-        let m = (mul_wide(v.unsigned_abs(), r.unsigned_abs()) >> 62) as i64;
-        let vel = if (v < 0) != (r < 0) { -m } else { m };
-        Some((pos, vel))
     }
 
     /// Axis `k`'s position, 2⁻³³ steps ([`Line::point`]). `None` past the
@@ -392,13 +333,6 @@ impl Line {
     /// Axis `k`'s velocity, 2⁻³² steps per tick ([`Line::point`]).
     pub fn velocity_internal(&self, k: usize) -> Option<i64> {
         self.point(k, self.lambda()).map(|(_, v)| v)
-    }
-
-    /// Decelerate along the line with the path's deceleration to a stop on
-    /// the first whole path step at or beyond the braking point (every
-    /// axis between two of its steps, on the line).
-    pub fn stop(&mut self) {
-        self.path.soft_stop();
     }
 
     /// The path's velocity, 2⁻³² steps of the farthest axis per tick.

@@ -55,6 +55,16 @@ pub trait I2cTarget {
     fn i2c_read(&mut self, which: Which, out: &mut [u8; RESPONSE_MAX]) -> usize;
 }
 
+/// A target by reference (the firmware shares `&'static mut Bridge`).
+impl<T: I2cTarget + ?Sized> I2cTarget for &mut T {
+    fn i2c_write(&mut self, write: Write<'_>) {
+        (**self).i2c_write(write)
+    }
+    fn i2c_read(&mut self, which: Which, out: &mut [u8; RESPONSE_MAX]) -> usize {
+        (**self).i2c_read(which, out)
+    }
+}
+
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum Phase {
     Idle,

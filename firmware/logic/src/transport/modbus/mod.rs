@@ -248,6 +248,29 @@ pub trait ModbusTarget {
     }
 }
 
+/// A target by reference (the firmware keeps its bridge in a static slot
+/// and shares `&'static mut Bridge`).
+impl<T: ModbusTarget + ?Sized> ModbusTarget for &mut T {
+    fn axis_for_id(&self, id: u8) -> Option<usize> {
+        (**self).axis_for_id(id)
+    }
+    fn axes(&self) -> usize {
+        (**self).axes()
+    }
+    fn request(&mut self, axis: usize, req: Request) -> Result<Effect, CommandError> {
+        (**self).request(axis, req)
+    }
+    fn query(&mut self, axis: usize, q: Query) -> Option<Value> {
+        (**self).query(axis, q)
+    }
+    fn ext_read(&mut self, axis: usize, address: u16, out: &mut [u16]) -> Result<(), ExtError> {
+        (**self).ext_read(axis, address, out)
+    }
+    fn ext_write(&mut self, axis: usize, address: u16, data: &[u16]) -> Result<(), ExtError> {
+        (**self).ext_write(axis, address, data)
+    }
+}
+
 /// An extension read not answered yet is retried every this many µs …
 pub const DEFER_RETRY_US: u64 = 1_000;
 /// … and answered with exception 04 after this long.
