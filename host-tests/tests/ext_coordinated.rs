@@ -175,3 +175,63 @@ fn half_a_32_bit_value_and_the_read_only_words_are_illegal_addresses() {
     assert_eq!(b.read(1, 0x0820, 1), Err(ILLEGAL_ADDRESS));
     assert_eq!(b.write(1, CMD, 2), Err(0x03));
 }
+
+/// The same block over I2C (0x73 writes, 0x72 reads: address and words
+/// MSB first, the read's first byte its status).
+#[test]
+fn i2c_0x73_starts_a_coordinated_move_and_0x72_reads_its_state() {
+    use host_tests::i2c_bench::I2cBench;
+    let mut b = I2cBench::new(2, Settings::FACTORY);
+    assert!(b.write(1, &[0x73, 0x08, 0x02, 0x00, 0x03]));
+    assert_eq!(b.read(1, 1).unwrap(), [0], "members written");
+    // Targets 400 and −200 (i32, high word first; I2C carries at most
+    // three registers a write: one target each).
+    assert!(b.write(1, &[0x73, 0x08, 0x10, 0, 0, 0x01, 0x90]));
+    assert_eq!(b.read(1, 1).unwrap(), [0]);
+    assert!(b.write(1, &[0x73, 0x08, 0x12, 0xFF, 0xFF, 0xFF, 0x38]));
+    assert_eq!(b.read(1, 1).unwrap(), [0]);
+    assert!(b.write(1, &[0x73, 0x08, 0x00, 0x00, 0x01]));
+    assert_eq!(b.read(1, 1).unwrap(), [0], "started");
+    b.run(3000);
+    assert!(b.write(1, &[0x72, 0x08, 0x00, 1]));
+    assert_eq!(b.read(1, 3).unwrap(), [0, 0, DONE as u8]);
+    assert_eq!(b.bridge.axis(0).unwrap().actual_position(), 400);
+    assert_eq!(b.bridge.axis(1).unwrap().actual_position(), -200);
+}
+
+/// And over USB (0xE1 writes, 0xE0 reads; `InDATA[14]` the outcome).
+#[test]
+fn usb_0xe1_starts_a_coordinated_move_and_0xe0_reads_its_state() {
+    use host_tests::i2c_bench::I2cBench;
+    let mut b = I2cBench::new(2, Settings::FACTORY);
+    let mut write = |b: &mut I2cBench, address: u16, words: &[u16]| -> u8 {
+        let mut w = [0u8; 64];
+        w[1] = 0xE1;
+        w[20..22].copy_from_slice(&address.to_be_bytes());
+        w[22] = words.len() as u8;
+        for (i, v) in words.iter().enumerate() {
+            w[24 + 2 * i..26 + 2 * i].copy_from_slice(&v.to_be_bytes());
+        }
+        let now = b.clock.now_ms();
+        b.bridge.on_usb_report(&w, now);
+        let r = *b.bridge.usb_next(now).expect("a response");
+        b.bridge.usb_sent();
+        r.0[14]
+    };
+    assert_eq!(write(&mut b, MEMBERS, &[0b11]), 0);
+    assert_eq!(write(&mut b, TARGETS, &[0, 100, 0, 300]), 0);
+    assert_eq!(write(&mut b, CMD, &[1]), 0);
+    // Refused while the move runs: 12 (the extension's refusal).
+    assert_eq!(write(&mut b, MEMBERS, &[0b01]), 12);
+    b.run(3000);
+    let mut rd = [0u8; 64];
+    rd[1] = 0xE0;
+    rd[20..22].copy_from_slice(&CMD.to_be_bytes());
+    rd[22] = 1;
+    let now = b.clock.now_ms();
+    b.bridge.on_usb_report(&rd, now);
+    let r = *b.bridge.usb_next(now).expect("a response");
+    b.bridge.usb_sent();
+    assert_eq!((r.0[14], &r.0[16..18]), (0, &[0, DONE as u8][..]));
+    assert_eq!(b.bridge.axis(1).unwrap().actual_position(), 300);
+}
