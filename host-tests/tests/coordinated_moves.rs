@@ -83,9 +83,9 @@ fn physical(m: &Member, logical: i64) -> i64 {
     logical_to_physical(logical, m.cfg.logical_shift, m.cfg.step)
 }
 
-/// Run the coordinated move of `members` (all of the rig's axes, from
-/// where they rest) to its end; the oracle's figures.
-fn run_line(members: &[Member], path: Limits, cap_ticks: u32) -> (Rig, Seen) {
+/// A rig of `members` at rest, their coordinated move started: the rig,
+/// and the line in microsteps (the chips' start and distance to go).
+fn start_line(members: &[Member], path: Limits) -> (Rig, Vec<i64>, Vec<i64>) {
     let cfgs: Vec<AxisConfig> = members.iter().map(|m| m.cfg).collect();
     let mut rig = Rig::new(&cfgs, members[0].limits);
     for (k, m) in members.iter().enumerate() {
@@ -104,6 +104,14 @@ fn run_line(members: &[Member], path: Limits, cap_ticks: u32) -> (Rig, Seen) {
     rig.group
         .coord_start(&ids, &targets, path)
         .expect("coordinated move starts");
+    (rig, a, d)
+}
+
+/// Run the coordinated move of `members` (all of the rig's axes, from
+/// where they rest) to its end; the oracle's figures.
+fn run_line(members: &[Member], path: Limits, cap_ticks: u32) -> (Rig, Seen) {
+    let (mut rig, a, d) = start_line(members, path);
+    let n = members.len();
     let mut seen = Seen {
         arrival: vec![None; n],
         speed: vec![0.0; n],
@@ -480,22 +488,8 @@ fn is_motion(c: &Command) -> bool {
 /// chips showed while running) and then rests: no motion command reaches
 /// any chip and no chip moves for 300 ms.
 fn interrupted(members: &[Member], at: u32, what: Interrupt) -> (i64, Option<(u8, AbortReason)>) {
-    let cfgs: Vec<AxisConfig> = members.iter().map(|m| m.cfg).collect();
-    let mut rig = Rig::new(&cfgs, members[0].limits);
-    for (k, m) in members.iter().enumerate() {
-        rig.axis(k).set_limits(m.limits);
-    }
-    rig.run(3);
+    let (mut rig, a, d) = start_line(members, FAST);
     let n = members.len();
-    let a: Vec<i64> = (0..n).map(|k| rig.chip_position(k)).collect();
-    let d: Vec<i64> = members
-        .iter()
-        .enumerate()
-        .map(|(k, m)| physical(m, m.target) - a[k])
-        .collect();
-    let ids: Vec<usize> = (0..n).collect();
-    let targets: Vec<i64> = members.iter().map(|m| m.target).collect();
-    rig.group.coord_start(&ids, &targets, FAST).expect("starts");
     for _ in 0..at {
         rig.tick();
     }

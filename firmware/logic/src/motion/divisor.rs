@@ -23,17 +23,10 @@ pub struct Divisor {
     m: u64,
 }
 
-/// High 64 bits of the 128-bit product `a·b`, from four 32 × 32 → 64 products
-/// (LLVM turns `u128` products into a library call on 32-bit ARM).
+/// High 64 bits of the 128-bit product `a·b` ([`mul_wide`]; the low half's
+/// assembly is left out by the compiler).
 const fn mul_hi(a: u64, b: u64) -> u64 {
-    let (a0, a1) = (a & 0xFFFF_FFFF, a >> 32);
-    let (b0, b1) = (b & 0xFFFF_FFFF, b >> 32);
-    let p00 = a0 * b0;
-    let p01 = a0 * b1;
-    let p10 = a1 * b0;
-    let p11 = a1 * b1;
-    let mid = (p00 >> 32) + (p01 & 0xFFFF_FFFF) + (p10 & 0xFFFF_FFFF);
-    p11 + (p01 >> 32) + (p10 >> 32) + (mid >> 32)
+    (mul_wide(a, b) >> 64) as u64
 }
 
 /// The 128-bit product `a·b`, from four 32 × 32 → 64 products (a `u128`
