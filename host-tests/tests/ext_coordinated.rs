@@ -204,7 +204,7 @@ fn i2c_0x73_starts_a_coordinated_move_and_0x72_reads_its_state() {
 fn usb_0xe1_starts_a_coordinated_move_and_0xe0_reads_its_state() {
     use host_tests::i2c_bench::I2cBench;
     let mut b = I2cBench::new(2, Settings::FACTORY);
-    let mut write = |b: &mut I2cBench, address: u16, words: &[u16]| -> u8 {
+    let write = |b: &mut I2cBench, address: u16, words: &[u16]| -> u8 {
         let mut w = [0u8; 64];
         w[1] = 0xE1;
         w[20..22].copy_from_slice(&address.to_be_bytes());
