@@ -235,3 +235,17 @@ fn usb_0xe1_starts_a_coordinated_move_and_0xe0_reads_its_state() {
     assert_eq!((r.0[14], &r.0[16..18]), (0, &[0, DONE as u8][..]));
     assert_eq!(b.bridge.axis(1).unwrap().actual_position(), 300);
 }
+
+#[test]
+fn a_stop_of_a_member_with_no_distance_to_go_stops_the_group() {
+    let mut b = bench();
+    describe(&mut b, 0b111, [6000, 3000, 0]);
+    b.write(1, CMD, 1).unwrap();
+    b.run(300);
+    // Axis 2 rests through the move; its Stop is the group's all the same.
+    b.write(3, 0x5F, 1).unwrap();
+    wait_for(&mut b, ABORTED, 2_000);
+    assert_eq!(b.read(1, ABORT, 1).unwrap(), [0x0202]);
+    let p = b.position(1);
+    assert!(p > 0 && p < 6000, "axis 0 stopped on the way: {p}");
+}

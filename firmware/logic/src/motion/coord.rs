@@ -12,10 +12,12 @@
 //!   trapezoidal [`Profile`] over the path parameter `s ∈ [0, L]`, where
 //!   `L = maxᵢ |targetᵢ − startᵢ|` (the distance of the axis that travels
 //!   farthest: path speeds are that axis's steps/s). Axis `i` is at
-//!   `startᵢ + dᵢ · s / L` every tick, exactly (2⁻³³ steps), so the rounded
-//!   position of every axis is within half a step of the straight line
-//!   through the two points, and every axis lands exactly on its target in
-//!   the same tick (the profile lands exactly on `L`).
+//!   `startᵢ + dᵢ · λ` every tick, `λ = s / L` in Q62 (one multiply by a
+//!   normalised reciprocal of `L`, at most two units of 2⁻⁶² below the
+//!   exact quotient, the same for every axis), so every axis is within
+//!   2⁻²⁹ steps of its point of the straight line through the two points,
+//!   and every axis lands exactly on its target in the same tick (the
+//!   profile lands exactly on `L`, where `λ` is exactly 1).
 //! * **No axis exceeds its own limits.** The path's limits are the smallest
 //!   of the requested path limits and, for every moving axis,
 //!   `⌊limitᵢ · L / |dᵢ|⌋`: axis `i` moves at `|dᵢ| / L` of the path's speed,
@@ -23,9 +25,10 @@
 //!   acceleration or deceleration (the most constrained axis sets the pace).
 //!   The profile's own one-quantum minimum acceleration (2⁻³² steps/tick²)
 //!   is the only exception, as for a single axis.
-//! * **Exact integers.** Offsets are `i64` steps, the path parameter is the
-//!   profile's `i128` in 2⁻³³ steps; `|dᵢ| ≤ 2³²` keeps `dᵢ · s` below 2⁹⁸.
-//!   A longer component is refused ([`CoordError::TooLong`]).
+//! * **Integers.** Components are `i64` steps, the path parameter is the
+//!   profile's `i128` in 2⁻³³ steps (below 2⁶⁵), `λ` below 2⁶²;
+//!   `|dᵢ| ≤ 2³²` keeps every product below 2⁹⁵. A longer component is
+//!   refused ([`CoordError::TooLong`]).
 
 use super::profile::{round_fine, Limits, Profile, POS_FRAC};
 use crate::powerstep::chain::MAX_DEVICES;
@@ -87,12 +90,14 @@ pub struct Line {
     /// an axis held between two of its steps), shrunk to 0 along the line
     /// ([`Line::with_offsets`]).
     pub(super) offset: [i64; MAX_AXES],
-    /// `dₖ · 2⁶² / L`, toward zero (|dₖ| ≤ L: at most 2⁶²): axis k's
-    /// share of the path's velocity, in Q62.
+    /// `(dₖ − offsetₖ) · 2⁶² / L`, toward zero (below 1.5 · 2⁶²): axis
+    /// k's share of the path's velocity, in Q62.
     pub(super) ratio: [i64; MAX_AXES],
-    /// `⌊2⁶² / L⌋` (0 for a line of no length): `s / L` in Q62 by a
-    /// multiply ([`Line::lambda`]).
+    /// `⌊2^(62 + z) / L⌋` for `2^(z − 1) ≤ L < 2^z` (0 for a line of no
+    /// length): `s / L` in Q62 is `s · inv >> shift` ([`Line::lambda`]).
     pub(super) inv: u64,
+    /// `33 + z`.
+    pub(super) shift: u32,
     /// `L`, steps (0: nothing moves).
     pub(super) length: i64,
     pub(super) path: Profile,
@@ -248,65 +253,100 @@ impl Line {
         limits: &[Limits],
         path: Limits,
     ) -> Result<Line, CoordError> {
+        let offsets = [0i64; MAX_AXES];
+        let offsets = offsets.get(..start.len()).unwrap_or(&offsets);
+        Line::with_offsets(tick_us, start, offsets, target, limits, path)
+    }
+
+    /// [`Line::new`] for axes that are `offsets` (2⁻³³ steps, at most half
+    /// a step either way, else [`CoordError::TooLong`]) beyond their
+    /// `start`: axis `k` runs from `startₖ + offsetₖ` to its target, at
+    /// `startₖ + offsetₖ · (1 − s/L) + dₖ · s/L` (an axis held between two
+    /// of its steps starts where it is, without a jump, and lands exactly).
+    /// Its limits are scaled by `|dₖ| + 1` where it has an offset: it may
+    /// travel up to half a step more than `|dₖ|`.
+    // L ≤ 2³² (checked_length) bounds z ≤ 33 and 62 + z ≤ 95; 33 + z ≤ 66.
+    #[allow(clippy::arithmetic_side_effects)]
+    pub fn with_offsets(
+        tick_us: u32,
+        start: &[i64],
+        offsets: &[i64],
+        target: &[i64],
+        limits: &[Limits],
+        path: Limits,
+    ) -> Result<Line, CoordError> {
+        const HALF: i64 = 1 << (POS_FRAC - 1);
         let mut s = [0i64; MAX_AXES];
         let mut delta = [0i64; MAX_AXES];
+        let mut offset = [0i64; MAX_AXES];
+        let mut spans = [0i64; MAX_AXES];
         if start.len() > MAX_AXES {
             return Err(CoordError::TooManyAxes);
         }
-        for (k, (a, b)) in start.iter().zip(target).enumerate() {
+        if offsets.len() != start.len() {
+            return Err(CoordError::LengthMismatch);
+        }
+        for (k, ((a, b), f)) in start.iter().zip(target).zip(offsets).enumerate() {
+            if !(-HALF..=HALF).contains(f) {
+                return Err(CoordError::TooLong);
+            }
             let d = i128::from(*b).saturating_sub(i128::from(*a));
-            if let (Some(sk), Some(dk)) = (s.get_mut(k), delta.get_mut(k)) {
+            // Beyond i64 is beyond MAX_COMPONENT: checked_length refuses it.
+            let d = i64::try_from(d).unwrap_or(i64::MAX);
+            let fields = (
+                s.get_mut(k),
+                delta.get_mut(k),
+                offset.get_mut(k),
+                spans.get_mut(k),
+            );
+            if let (Some(sk), Some(dk), Some(ok), Some(wk)) = fields {
                 *sk = *a;
-                // Beyond i64 is beyond MAX_COMPONENT: checked_length refuses it.
-                *dk = i64::try_from(d).unwrap_or(i64::MAX);
+                *dk = d;
+                *ok = *f;
+                // (A magnitude: path_limits takes |span|.)
+                *wk = if *f == 0 {
+                    d
+                } else {
+                    d.saturating_abs().saturating_add(1)
+                };
             }
         }
         let n = start.len();
         let deltas = delta.get(..n).unwrap_or(&[]);
         let length = checked_length(deltas, &[target.len(), limits.len()])?;
-        let mut profile = Profile::new(tick_us, path_limits(deltas, length, limits, path));
-        // length ≤ 2³²: fits i64.
-        let inv = (1u64 << 62).checked_div(length).unwrap_or(0);
+        let spans = spans.get(..n).unwrap_or(&[]);
+        let mut profile = Profile::new(tick_us, path_limits(spans, length, limits, path));
+        // s / L in Q62 by a multiply: a reciprocal normalised to L's bits
+        // (2^(62 + z) / L with 2^(z − 1) ≤ L < 2^z: in (2⁶², 2⁶³]), so
+        // λ = s · inv / 2^(33 + z) is at most one unit below ⌊s · 2⁶² / L⌋.
+        let z = u64::BITS - length.leading_zeros();
+        let inv = (1u128 << (62 + z))
+            .checked_div(u128::from(length))
+            .map_or(0, |q| u64::try_from(q).unwrap_or(u64::MAX));
         let mut ratio = [0i64; MAX_AXES];
-        for (r, d) in ratio.iter_mut().zip(deltas) {
-            // |d| ≤ L ≤ 2³²: |d| · 2⁶² < 2⁹⁵, the quotient ≤ 2⁶² (0 for
-            // a line of no length).
-            let q = (u128::from(d.unsigned_abs()) << 62)
+        for ((r, d), o) in ratio.iter_mut().zip(deltas).zip(&offset) {
+            // The distance axis k travels, 2⁻³³ steps: |dₖ · 2³³ − oₖ| ≤
+            // 2⁶⁵ + 2³², so · 2²⁹ < 2⁹⁵; the quotient by L < 1.5 · 2⁶².
+            let fine = (i128::from(*d) << POS_FRAC).saturating_sub(i128::from(*o));
+            let q = (fine.unsigned_abs() << (62 - POS_FRAC))
                 .checked_div(u128::from(length))
-                .unwrap_or(0) as i64;
-            *r = if *d < 0 { q.wrapping_neg() } else { q };
+                .map_or(0, |q| i64::try_from(q).unwrap_or(i64::MAX));
+            *r = if fine < 0 { q.wrapping_neg() } else { q };
         }
+        // length ≤ 2³²: fits i64.
         let length = length as i64;
         profile.move_to(length);
         Ok(Line {
             n,
             start: s,
             delta,
-            offset: [0; MAX_AXES],
+            offset,
             ratio,
             inv,
+            shift: POS_FRAC + z,
             length,
             path: profile,
         })
-    }
-
-    /// The same line from axes that are `offsets` (2⁻³³ steps, at most
-    /// half a step either way, else [`CoordError::TooLong`]) beyond their
-    /// `start`: axis `k` runs from `startₖ + offsetₖ` to its target, at
-    /// `startₖ + offsetₖ · (1 − s/L) + dₖ · s/L` (an axis held between two
-    /// of its steps starts where it is, without a jump, and lands exactly).
-    pub fn with_offsets(mut self, offsets: &[i64]) -> Result<Line, CoordError> {
-        if offsets.len() != self.n {
-            return Err(CoordError::LengthMismatch);
-        }
-        const HALF: i64 = 1 << (POS_FRAC - 1);
-        for (o, f) in self.offset.iter_mut().zip(offsets) {
-            if !(-HALF..=HALF).contains(f) {
-                return Err(CoordError::TooLong);
-            }
-            *o = *f;
-        }
-        Ok(self)
     }
 
     /// Axes in the move.
@@ -322,17 +362,6 @@ impl Line {
     /// The path parameter `s`, 2⁻³³ steps of the farthest axis.
     pub fn path_fine(&self) -> i128 {
         self.path.position_fine()
-    }
-
-    /// Axis `k`'s position, 2⁻³³ steps ([`Line::point`]). `None` past the
-    /// last axis.
-    pub fn position_fine(&self, k: usize) -> Option<i128> {
-        self.point(k, self.lambda()).map(|(p, _)| p)
-    }
-
-    /// Axis `k`'s velocity, 2⁻³² steps per tick ([`Line::point`]).
-    pub fn velocity_internal(&self, k: usize) -> Option<i64> {
-        self.point(k, self.lambda()).map(|(_, v)| v)
     }
 
     /// The path's velocity, 2⁻³² steps of the farthest axis per tick.

@@ -21,7 +21,10 @@
 //!   chip reset, a chain error (or a command the bridge's members refuse:
 //!   a move of its own, Set zero, a step-mode change) — stops every other
 //!   member at once too (HardStop: as close to the line as the chips
-//!   allow), and the group reports which member and why. After any of
+//!   allow), and the group reports which member and why. Members with no
+//!   distance to go rest through the move, and the same holds for them:
+//!   their soft stop brakes the group, anything taking them out of rest
+//!   stops it at once. After any of
 //!   them every member rests until a new motion command.
 
 use super::axis::{Axis, AxisFault};
@@ -86,6 +89,9 @@ pub struct CoordRun {
     targets: [i64; MAX_AXES],
     /// Bit i: member i moves (a zero component only rests).
     moving: u8,
+    /// Bit i: member i rests through the move (no distance to go; a stop
+    /// of it, or anything taking it out of rest, is the group's).
+    resting: u8,
     abort: Option<(u8, AbortReason)>,
     /// Ticks the line has run.
     ticks: u32,
@@ -106,6 +112,7 @@ impl CoordRun {
             n: 0,
             targets: [0; MAX_AXES],
             moving: 0,
+            resting: 0,
             abort: None,
             ticks: 0,
         }
@@ -216,8 +223,7 @@ impl CoordRun {
             offsets.get(..n).unwrap_or(&[]),
             limits.get(..n).unwrap_or(&[]),
         );
-        let line = Line::new(tick_us, starts, targets, limits, path)
-            .and_then(|l| l.with_offsets(offsets))
+        let line = Line::with_offsets(tick_us, starts, offsets, targets, limits, path)
             .map_err(StartError::Line)?;
         let mut moving = 0u8;
         let mut t = [0i64; MAX_AXES];
@@ -237,6 +243,19 @@ impl CoordRun {
                 }
             }
         }
+        // Members with no distance to go rest through the move (not when
+        // nothing moves: that move is done at once).
+        let mut resting = 0u8;
+        if moving != 0 {
+            for (i, &k) in members.iter().enumerate() {
+                if moving & (1 << i) == 0 {
+                    resting |= 1 << i;
+                    if let Some(axis) = axes.get_mut(k) {
+                        axis.join_resting();
+                    }
+                }
+            }
+        }
         *self = CoordRun {
             state: if moving == 0 {
                 CoordState::Done
@@ -248,6 +267,7 @@ impl CoordRun {
             n,
             targets: t,
             moving,
+            resting,
             abort: None,
             ticks: 0,
         };
@@ -267,6 +287,7 @@ impl CoordRun {
                 // Nothing has moved: every member holds where it is.
                 self.abort = Some((by.unwrap_or(u8::MAX), AbortReason::Stopped));
                 self.hold_all(axes);
+                self.release_resting(axes);
                 self.state = CoordState::Settling;
             }
             CoordState::Running => {
@@ -292,12 +313,25 @@ impl CoordRun {
 
     /// (line index, chain index) of the moving members.
     fn moving_members(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
-        let moving = self.moving;
+        self.members_in(self.moving)
+    }
+
+    /// (line index, chain index) of the members whose bit `mask` has.
+    fn members_in(&self, mask: u8) -> impl Iterator<Item = (usize, usize)> + '_ {
         self.member_list()
             .iter()
             .enumerate()
-            .filter(move |(i, _)| moving & (1 << i) != 0)
+            .filter(move |(i, _)| mask & (1 << i) != 0)
             .map(|(i, &k)| (i, usize::from(k)))
+    }
+
+    /// The resting members leave the group (the move is over).
+    fn release_resting(&self, axes: &mut [Axis]) {
+        for (_, k) in self.members_in(self.resting) {
+            if let Some(a) = axes.get_mut(k) {
+                a.unlead();
+            }
+        }
     }
 
     /// One control tick, before the axes plan: lead every member to its
@@ -337,20 +371,27 @@ impl CoordRun {
     }
 
     fn lead_step(&mut self, axes: &mut [Axis]) {
-        // A member that left the line stops the others at once.
+        // A member that left the line (or left its rest) stops the others
+        // at once.
+        let joined = self.moving | self.resting;
         let left = self
-            .moving_members()
+            .members_in(joined)
             .find(|&(_, k)| axes.get(k).is_none_or(|a| !a.is_following()));
         if let Some((_, k)) = left {
             self.halt(axes, k);
             return;
         }
         let mut asked = None;
-        for (_, k) in self.moving_members() {
+        for (_, k) in self.members_in(joined) {
             if let Some(a) = axes.get_mut(k) {
                 if a.take_stop_request() && asked.is_none() {
                     asked = u8::try_from(k).ok();
                 }
+            }
+        }
+        for (_, k) in self.members_in(self.resting) {
+            if let Some(a) = axes.get_mut(k) {
+                a.keep_resting();
             }
         }
         if asked.is_some() {
@@ -378,6 +419,7 @@ impl CoordRun {
         let done = line.is_done();
         if done && self.state == CoordState::Stopping {
             self.hold_all(axes);
+            self.release_resting(axes);
             self.state = CoordState::Settling;
             return;
         }
@@ -389,6 +431,7 @@ impl CoordRun {
                     a.unlead();
                 }
             }
+            self.release_resting(axes);
             self.state = CoordState::Settling;
         }
     }
@@ -426,6 +469,7 @@ impl CoordRun {
                 }
             }
         }
+        self.release_resting(axes);
         self.state = CoordState::Settling;
     }
 
@@ -476,18 +520,18 @@ impl Line {
     pub fn lambda(&self) -> u64 {
         let s = self.path.position_fine();
         let end = i128::from(self.length) << POS_FRAC;
-        if s <= 0 || self.length == 0 {
+        if s <= 0 && self.length != 0 {
             return 0;
         }
         if s >= end {
             return 1 << 62;
         }
-        // s < L · 2³³ ≤ 2⁶⁵ and inv ≤ 2⁶² / L: the product is below 2¹²⁷,
-        // the result below 2⁶².
+        // 0 < s < L · 2³³ < 2^(33 + z) and inv ≤ 2^(62 + z) / L: the
+        // product is below 2^(95 + z) ≤ 2¹²⁸ (z ≤ 33), the result below 2⁶².
         let s = s as u128;
         let lo = mul_wide(s as u64, self.inv);
         let hi = mul_wide((s >> 64) as u64, self.inv) << 64;
-        (lo.wrapping_add(hi) >> POS_FRAC) as u64
+        (lo.wrapping_add(hi) >> self.shift) as u64
     }
 
     /// Axis `k`'s point of the line at `lambda` ([`Line::lambda`]): its
@@ -523,5 +567,65 @@ impl Line {
     /// axis between two of its steps, on the line).
     pub fn stop(&mut self) {
         self.path.soft_stop();
+    }
+
+    /// Axis `k`'s position, 2⁻³³ steps ([`Line::point`]). `None` past the
+    /// last axis.
+    pub fn position_fine(&self, k: usize) -> Option<i128> {
+        self.point(k, self.lambda()).map(|(p, _)| p)
+    }
+
+    /// Axis `k`'s velocity, 2⁻³² steps per tick ([`Line::point`]).
+    pub fn velocity_internal(&self, k: usize) -> Option<i64> {
+        self.point(k, self.lambda()).map(|(_, v)| v)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const ANY: Limits = Limits {
+        max_speed: u32::MAX,
+        acc: u32::MAX,
+        dec: u32::MAX,
+    };
+
+    #[test]
+    fn lambda_is_within_two_units_of_the_exact_quotient_for_any_length() {
+        for length in [
+            1i64,
+            3,
+            1000,
+            100_000,
+            (3 << 30) + 1,
+            (1 << 32) - 1,
+            1 << 32,
+        ] {
+            let mut line = Line::new(1000, &[0], &[length], &[ANY], ANY).unwrap();
+            let end = u128::from(length as u64) << POS_FRAC;
+            for s in [1u128, end / 3, end / 2, end - 1] {
+                line.path.set_position_fine(s as i128);
+                // ⌊s · 2⁶² / (L · 2³³)⌋ = ⌊s · 2²⁹ / L⌋.
+                let exact = ((s << 29) / u128::from(length as u64)) as u64;
+                let l = line.lambda();
+                assert!(
+                    l <= exact && exact - l <= 2,
+                    "L {length}, s {s}: {l} for {exact}"
+                );
+            }
+            line.path.set_position_fine(end as i128);
+            assert_eq!(
+                line.lambda(),
+                1 << 62,
+                "L {length}: exactly 1 at the target"
+            );
+        }
+    }
+
+    #[test]
+    fn a_line_of_no_length_is_at_its_end() {
+        let line = Line::new(1000, &[5], &[5], &[ANY], ANY).unwrap();
+        assert_eq!(line.lambda(), 1 << 62);
     }
 }

@@ -116,13 +116,15 @@ impl Request {
     }
 
     /// Refused for a member of a coordinated move under way: what would
-    /// move it on its own, or change its unit, position or limits (a Stop,
-    /// a soft stop and sleep are taken: they stop the group).
+    /// move it on its own, or change its unit, position or limits (USB
+    /// 0x80's DRV8711 image carries the step mode: refused whole). A Stop,
+    /// a soft stop and sleep are taken: they stop the group.
     pub const fn leaves_a_group(&self) -> bool {
         self.commands_motion()
             || matches!(
                 self,
                 Request::SetStepMode(_)
+                    | Request::SetDriverRegisters(_)
                     | Request::SetZero
                     | Request::SetMaxSpeed(_)
                     | Request::SetAcceleration(_)

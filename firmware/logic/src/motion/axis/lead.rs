@@ -15,6 +15,8 @@ pub(super) struct LeadMark {
     at: u64,
     /// A soft stop asked of this member: the group stops along the line.
     stop_asked: bool,
+    /// A member with no distance to go: it rests through the move.
+    resting: bool,
 }
 
 impl Axis {
@@ -47,7 +49,27 @@ impl Axis {
             target,
             at: self.tick,
             stop_asked: false,
+            resting: false,
         });
+    }
+
+    /// Join a coordinated move as a member with no distance to go: it
+    /// rests through the move, and a stop of it, or anything that takes it
+    /// out of rest, is the group's ([`Axis::is_following`]).
+    pub fn join_resting(&mut self) {
+        self.lead = Some(LeadMark {
+            target: self.required_position(),
+            at: self.tick,
+            stop_asked: false,
+            resting: true,
+        });
+    }
+
+    /// A resting member's tick: its soft stop stays the group's.
+    pub fn keep_resting(&mut self) {
+        if let Some(m) = self.lead.as_mut() {
+            m.at = self.tick;
+        }
     }
 
     /// This tick's setpoint from the group: the profile ends the tick at
@@ -59,14 +81,18 @@ impl Axis {
         }
     }
 
-    /// Still on the group's line: led, moving to the line's target, not
-    /// stopped, reset or faulted since it joined.
+    /// Still on the group's line: led, moving to the line's target (a
+    /// resting member: at rest), not stopped, reset or faulted since it
+    /// joined.
     pub fn is_following(&self) -> bool {
-        let Some(m) = self.lead else {
-            return false;
-        };
-        self.profile.mode() == Mode::Position(m.target)
-            && matches!(self.state, AxisState::Idle | AxisState::Streaming)
+        match self.lead {
+            None => false,
+            Some(m) if m.resting => self.is_at_rest(),
+            Some(m) => {
+                self.profile.mode() == Mode::Position(m.target)
+                    && matches!(self.state, AxisState::Idle | AxisState::Streaming)
+            }
+        }
     }
 
     /// The axis started streaming: the next lead moves its chip.
