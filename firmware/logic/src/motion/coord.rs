@@ -349,6 +349,13 @@ impl Line {
         })
     }
 
+    /// Axis `k`'s target (its start and component), `None` past the last
+    /// axis.
+    pub fn target(&self, k: usize) -> Option<i64> {
+        let a = self.start.get(..self.n)?.get(k)?;
+        a.checked_add(*self.delta.get(k)?)
+    }
+
     /// Axes in the move.
     pub fn axes(&self) -> usize {
         self.n

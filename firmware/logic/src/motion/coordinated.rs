@@ -86,7 +86,6 @@ pub struct CoordRun {
     /// Chain indices of the members, in the line's order.
     members: [u8; MAX_AXES],
     n: usize,
-    targets: [i64; MAX_AXES],
     /// Bit i: member i moves (a zero component only rests).
     moving: u8,
     /// Bit i: member i rests through the move (no distance to go; a stop
@@ -110,7 +109,6 @@ impl CoordRun {
             line: None,
             members: [0; MAX_AXES],
             n: 0,
-            targets: [0; MAX_AXES],
             moving: 0,
             resting: 0,
             abort: None,
@@ -226,16 +224,12 @@ impl CoordRun {
         let line = Line::with_offsets(tick_us, starts, offsets, targets, limits, path)
             .map_err(StartError::Line)?;
         let mut moving = 0u8;
-        let mut t = [0i64; MAX_AXES];
         for (i, ((&k, &target), (&s, &o))) in members
             .iter()
             .zip(targets)
             .zip(starts.iter().zip(offsets))
             .enumerate()
         {
-            if let Some(slot) = t.get_mut(i) {
-                *slot = target;
-            }
             if target != s || o != 0 {
                 moving |= 1 << i;
                 if let Some(axis) = axes.get_mut(k) {
@@ -265,7 +259,6 @@ impl CoordRun {
             line: Some(line),
             members: ids,
             n,
-            targets: t,
             moving,
             resting,
             abort: None,
@@ -303,8 +296,12 @@ impl CoordRun {
 
     /// Every moving member holds at its point of the line now.
     fn hold_all(&mut self, axes: &mut [Axis]) {
+        let Some(line) = self.line.as_ref() else {
+            return;
+        };
+        let lambda = line.lambda();
         for (i, k) in self.moving_members() {
-            let pos = self.line.as_ref().and_then(|l| l.position_fine(i));
+            let pos = line.point(i, lambda).map(|(p, _)| p);
             if let (Some(axis), Some(pos)) = (axes.get_mut(k), pos) {
                 axis.hold_led(pos);
             }
@@ -491,7 +488,7 @@ impl CoordRun {
 
     /// Member `i`'s target (line order).
     pub fn target(&self, i: usize) -> Option<i64> {
-        self.targets.get(..self.n)?.get(i).copied()
+        self.line.as_ref()?.target(i)
     }
 
     /// The members' chain indices, in the line's order.
