@@ -136,22 +136,41 @@ fn axis_group() -> AxisGroup {
     group
 }
 
+/// `N` measured ticks, each region counted by `marks` (the run counter
+/// resumed after each window), `before` run ahead of each (not counted),
+/// the calibration pair after each if `calibrate`.
+fn measured(
+    group: &mut AxisGroup,
+    chain: &mut Chain<Bus>,
+    marks: &Marks,
+    tick_ns: u64,
+    calibrate: bool,
+    mut before: impl FnMut(&mut AxisGroup),
+) {
+    let bus = chain.bus_mut();
+    bus.resume = marks.run;
+    bus.counting = true;
+    for _ in 0..N {
+        before(group);
+        tick(group, chain, marks, tick_ns);
+        if calibrate {
+            armcost_mark_cal();
+        }
+        armcost_mark_off();
+        armcost_epoch();
+    }
+    chain.bus_mut().counting = false;
+}
+
 /// The cruise workload (counters 1–3, and 5 after each tick): every axis
 /// streaming its long move, every tick the same.
 fn cruise(group: &mut AxisGroup, chain: &mut Chain<Bus>, tick_ns: u64) {
-    chain.bus_mut().counting = true;
     let marks = Marks {
         prepare: armcost_mark_prepare,
         run: armcost_mark_run,
         finish: armcost_mark_finish,
     };
-    for _ in 0..N {
-        tick(group, chain, &marks, tick_ns);
-        armcost_mark_cal();
-        armcost_mark_off();
-        armcost_epoch();
-    }
-    chain.bus_mut().counting = false;
+    measured(group, chain, &marks, tick_ns, true, |_| {});
 }
 
 /// Stop every axis and wait until the group has settled (not measured).
@@ -175,16 +194,13 @@ fn stop_all(group: &mut AxisGroup, chain: &mut Chain<Bus>, tick_ns: u64) {
 /// landing, the next move's start), each starting when the last one has
 /// landed.
 fn moves(group: &mut AxisGroup, chain: &mut Chain<Bus>, tick_ns: u64) {
-    let bus = chain.bus_mut();
-    bus.resume = armcost_mark_run2;
-    bus.counting = true;
     let marks = Marks {
         prepare: armcost_mark_prepare2,
         run: armcost_mark_run2,
         finish: armcost_mark_finish2,
     };
     let mut out = [true; 8];
-    for _ in 0..N {
+    measured(group, chain, &marks, tick_ns, false, |group| {
         for (k, o) in out.iter_mut().enumerate() {
             if let Some(a) = group.axis_mut(k) {
                 if a.is_settled() {
@@ -194,11 +210,7 @@ fn moves(group: &mut AxisGroup, chain: &mut Chain<Bus>, tick_ns: u64) {
                 }
             }
         }
-        tick(group, chain, &marks, tick_ns);
-        armcost_mark_off();
-        armcost_epoch();
-    }
-    chain.bus_mut().counting = false;
+    });
 }
 
 /// The coordinated workload (counters 9–11): the 8 axes in one
@@ -220,20 +232,12 @@ fn coordinated(group: &mut AxisGroup, chain: &mut Chain<Bus>, tick_ns: u64) {
     if group.coord_start(&members, &targets, fast).is_err() {
         semihosting::process::exit(4)
     }
-    let bus = chain.bus_mut();
-    bus.resume = armcost_mark_run3;
-    bus.counting = true;
     let marks = Marks {
         prepare: armcost_mark_prepare3,
         run: armcost_mark_run3,
         finish: armcost_mark_finish3,
     };
-    for _ in 0..N {
-        tick(group, chain, &marks, tick_ns);
-        armcost_mark_off();
-        armcost_epoch();
-    }
-    chain.bus_mut().counting = false;
+    measured(group, chain, &marks, tick_ns, false, |_| {});
 }
 
 /// Counter 4: `Profile::tick` of a long move, on its own.
