@@ -76,7 +76,32 @@ struct Seen {
 
 /// The smallest tolerance (µsteps) at which `p` is on the line.
 fn distance(p: &[i64], a: &[i64], d: &[i64]) -> i64 {
-    (0..).find(|&t| on_line(p, a, d, t)).unwrap_or(i64::MAX)
+    least(|t| on_line(p, a, d, t))
+}
+
+/// The smallest `t ≥ 0` for which `fits(t)` holds (`fits` is monotone:
+/// true at `t` means true above it), by doubling then bisecting.
+fn least(fits: impl Fn(i64) -> bool) -> i64 {
+    if fits(0) {
+        return 0;
+    }
+    let mut hi = 1i64;
+    while !fits(hi) {
+        if hi > i64::MAX / 4 {
+            return i64::MAX;
+        }
+        hi *= 2;
+    }
+    let mut lo = hi / 2; // fits(lo) is false
+    while hi - lo > 1 {
+        let mid = lo + (hi - lo) / 2;
+        if fits(mid) {
+            hi = mid;
+        } else {
+            lo = mid;
+        }
+    }
+    hi
 }
 
 fn physical(m: &Member, logical: i64) -> i64 {
@@ -107,44 +132,44 @@ fn start_line(members: &[Member], path: Limits) -> (Rig, Vec<i64>, Vec<i64>) {
     (rig, a, d)
 }
 
-/// Run the coordinated move of `members` (all of the rig's axes, from
-/// where they rest) to its end; the oracle's figures.
-fn run_line(members: &[Member], path: Limits, cap_ticks: u32) -> (Rig, Seen) {
-    let (mut rig, a, d) = start_line(members, path);
-    let n = members.len();
-    let mut seen = Seen {
-        arrival: vec![None; n],
-        speed: vec![0.0; n],
-        run_speed: vec![0.0; n],
-        run_acc: vec![0.0; n],
-        ..Seen::default()
-    };
-    let eff: Vec<Limits> = (0..n)
-        .map(|k| rig.group.axis_mut(k).unwrap().streaming_limits())
-        .collect();
-    // The Run speed in effect at each of the last `window` ticks (10 ms):
-    // accelerations are measured over it, as the chip's own ramps run
-    // between two Runs and one tick at 5 kHz is below one SPEED quantum.
-    let window = (10_000 / members[0].cfg.tick_us).max(1) as usize;
-    let mut runs: Vec<std::collections::VecDeque<f64>> = vec![Default::default(); n];
-    for k in 0..n {
-        rig.chain
-            .bus_mut()
-            .device_mut(k)
-            .expect("device")
-            .clear_log();
-    }
-    for t in 0..cap_ticks {
-        rig.tick();
-        let commanded: Vec<i64> = (0..n)
-            .map(|k| rig.group.axis(k).unwrap().profile_physical())
+/// The chips' speeds and the Run speeds they were sent, over each
+/// member's limits, tick by tick (`Seen`'s `speed`, `run_speed`,
+/// `run_acc`).
+struct Meter {
+    eff: Vec<Limits>,
+    /// The Run speed in effect at each of the last `window` ticks (10 ms):
+    /// accelerations are measured over it, as the chip's own ramps run
+    /// between two Runs and one tick at 5 kHz is below one SPEED quantum.
+    window: usize,
+    runs: Vec<std::collections::VecDeque<f64>>,
+}
+
+impl Meter {
+    fn new(rig: &mut Rig, members: &[Member]) -> Meter {
+        let n = members.len();
+        let eff = (0..n)
+            .map(|k| rig.group.axis_mut(k).unwrap().streaming_limits())
             .collect();
-        let chips: Vec<i64> = (0..n).map(|k| rig.chip_position(k)).collect();
-        seen.commanded = seen.commanded.max(distance(&commanded, &a, &d));
-        seen.chips = seen.chips.max(distance(&chips, &a, &d));
         for k in 0..n {
-            let v = chip_speed(&rig, k, &members[k]);
-            seen.speed[k] = seen.speed[k].max(v.abs() / f64::from(eff[k].max_speed));
+            rig.chain
+                .bus_mut()
+                .device_mut(k)
+                .expect("device")
+                .clear_log();
+        }
+        Meter {
+            eff,
+            window: (10_000 / members[0].cfg.tick_us).max(1) as usize,
+            runs: vec![Default::default(); n],
+        }
+    }
+
+    /// After tick `t`: this tick's speeds and Run changes into `seen`.
+    fn tick(&mut self, rig: &mut Rig, members: &[Member], seen: &mut Seen, t: u32) {
+        for k in 0..members.len() {
+            let v = chip_speed(rig, k, &members[k]);
+            let eff = self.eff[k];
+            seen.speed[k] = seen.speed[k].max(v.abs() / f64::from(eff.max_speed));
             let chip = rig.chain.bus_mut().device_mut(k).expect("device");
             let run = chip
                 .received()
@@ -154,22 +179,62 @@ fn run_line(members: &[Member], path: Limits, cap_ticks: u32) -> (Rig, Seen) {
                 })
                 .last();
             chip.clear_log();
-            let r = run.or(runs[k].back().copied()).unwrap_or(0.0);
-            seen.run_speed[k] = seen.run_speed[k].max(r.abs() / f64::from(eff[k].max_speed));
-            if runs[k].len() == window {
-                let from = runs[k].pop_front().unwrap_or(0.0);
+            let runs = &mut self.runs[k];
+            let r = run.or(runs.back().copied()).unwrap_or(0.0);
+            seen.run_speed[k] = seen.run_speed[k].max(r.abs() / f64::from(eff.max_speed));
+            if runs.len() == self.window {
+                let from = runs.pop_front().unwrap_or(0.0);
                 // Less the read-back correction's dither (a following
                 // error of ±2 microsteps changes the Run by it).
                 let dr = ((r - from).abs() - correction_step(&members[k])).max(0.0);
-                let span = tick_s(&members[k]) * window as f64;
-                let ratio = dr / span / ramp(&eff[k], from, r);
-                if std::env::var("COORD_TRACE").is_ok() && ratio > 1.05 {
+                let span = tick_s(&members[k]) * self.window as f64;
+                let ratio = dr / span / ramp(&eff, from, r);
+                let window = std::env::var("COORD_WINDOW").ok().and_then(|w| {
+                    let (a, b) = w.split_once('-')?;
+                    Some((a.parse::<u32>().ok()?, b.parse::<u32>().ok()?))
+                });
+                let in_window = window.is_some_and(|(a, b)| (a..=b).contains(&t));
+                if std::env::var("COORD_TRACE").is_ok() && ratio > 1.05 || in_window {
                     let a = rig.group.axis(k).unwrap();
-                    eprintln!("t {t} axis {k} run {from:.1} -> {r:.1} ratio {ratio:.2} state {:?} err {} coord {:?} prof v {} pos {} target {} chip {}", a.state(), a.following_error(), rig.group.coord().state(), a.profile().velocity(), a.profile_physical(), members[k].target, chips[k]);
+                    let c = rig.chain.bus().device(k).expect("device");
+                    eprintln!("t {t} axis {k} run {from:.1} -> {r:.1} ratio {ratio:.2} state {:?} err {} coord {:?} prof v {} pos {} target {} chip v {:.0} ACC {} DEC {}", a.state(), a.following_error(), rig.group.coord().state(), a.profile().velocity(), a.profile_physical(), members[k].target, chip_speed(rig, k, &members[k]), c.register(bridge_logic::powerstep::registers::Register::Acc), c.register(bridge_logic::powerstep::registers::Register::Dec));
                 }
                 seen.run_acc[k] = seen.run_acc[k].max(ratio);
             }
-            runs[k].push_back(r);
+            runs.push_back(r);
+        }
+    }
+}
+
+impl Seen {
+    fn new(n: usize) -> Seen {
+        Seen {
+            arrival: vec![None; n],
+            speed: vec![0.0; n],
+            run_speed: vec![0.0; n],
+            run_acc: vec![0.0; n],
+            ..Seen::default()
+        }
+    }
+}
+
+/// Run the coordinated move of `members` (all of the rig's axes, from
+/// where they rest) to its end; the oracle's figures.
+fn run_line(members: &[Member], path: Limits, cap_ticks: u32) -> (Rig, Seen) {
+    let (mut rig, a, d) = start_line(members, path);
+    let n = members.len();
+    let mut seen = Seen::new(n);
+    let mut meter = Meter::new(&mut rig, members);
+    for t in 0..cap_ticks {
+        rig.tick();
+        let commanded: Vec<i64> = (0..n)
+            .map(|k| rig.group.axis(k).unwrap().profile_physical())
+            .collect();
+        let chips: Vec<i64> = (0..n).map(|k| rig.chip_position(k)).collect();
+        seen.commanded = seen.commanded.max(distance(&commanded, &a, &d));
+        seen.chips = seen.chips.max(distance(&chips, &a, &d));
+        meter.tick(&mut rig, members, &mut seen, t);
+        for k in 0..n {
             let p = rig.group.axis(k).unwrap().profile();
             if seen.arrival[k].is_none()
                 && p.is_settled()
@@ -359,10 +424,17 @@ fn check(members: &[Member], rig: &Rig, seen: &Seen, what: &str) {
         "{what}: arrivals {:?}",
         seen.arrival
     );
+    let targets: Vec<i64> = members.iter().map(|m| m.target).collect();
+    lands_within_limits(members, &targets, rig, seen, what);
+}
+
+/// Every member on `targets` (logical steps), and no chip speed, Run
+/// speed or Run change over its limit (the shares `Seen` measured).
+fn lands_within_limits(members: &[Member], targets: &[i64], rig: &Rig, seen: &Seen, what: &str) {
     for (k, m) in members.iter().enumerate() {
         assert_eq!(
             rig.chip_position(k),
-            physical(m, m.target),
+            physical(m, targets[k]),
             "{what}: axis {k} lands"
         );
         assert!(
@@ -483,14 +555,22 @@ fn is_motion(c: &Command) -> bool {
     )
 }
 
-/// Run the move of `members`, interrupt it at tick `at`, and check that
-/// the group stops on the line (within `tol` µsteps of it beyond what the
-/// chips showed while running) and then rests: no motion command reaches
-/// any chip and no chip moves for 300 ms.
-fn interrupted(members: &[Member], at: u32, what: Interrupt) -> (i64, Option<(u8, AbortReason)>) {
-    let (mut rig, a, d) = start_line(members, FAST);
+/// Run the move of `members`, then the path of `waypoints` behind it (fed
+/// as the queue drains), interrupt it at tick `at`, and check that the
+/// group stops and then rests ([`settle_and_rest`]): how far the chips
+/// stopped from the path (µsteps) and why the move ended.
+fn interrupted(
+    members: &[Member],
+    waypoints: &[Vec<i64>],
+    at: u32,
+    what: Interrupt,
+) -> (i64, Option<(u8, AbortReason)>) {
+    let (mut rig, a, _) = start_line(members, FAST);
+    let points = polyline(members, &a, waypoints);
     let n = members.len();
+    let mut fed = 0;
     for _ in 0..at {
+        fed += feed(&mut rig, &waypoints[fed..]);
         rig.tick();
     }
     match what {
@@ -499,7 +579,16 @@ fn interrupted(members: &[Member], at: u32, what: Interrupt) -> (i64, Option<(u8
         Interrupt::StopNow(k) => rig.axis(k).stop_now(),
         Interrupt::Chip(k, f) => rig.chain.bus_mut().device_mut(k).expect("chip").inject(f),
     }
-    let tick_ms = f64::from(members[0].cfg.tick_us) / 1000.0;
+    let chips = settle_and_rest(&mut rig, n, &format!("{what:?}"));
+    let off = least(|tol| (0..points.len() - 1).any(|j| on_segment(&chips, &points, j, tol)));
+    (off, rig.group.coord().abort())
+}
+
+/// Tick until the group's move is over and every axis settled, then
+/// check that it rests: no motion command reaches any chip and no chip
+/// moves for 300 ms. The chips' positions at rest.
+fn settle_and_rest(rig: &mut Rig, n: usize, what: &str) -> Vec<i64> {
+    let tick_ms = f64::from(rig.group.axis(0).unwrap().config().tick_us) / 1000.0;
     let cap = (20_000.0 / tick_ms) as u32;
     let mut ticks = 0;
     while !(matches!(
@@ -511,14 +600,12 @@ fn interrupted(members: &[Member], at: u32, what: Interrupt) -> (i64, Option<(u8
         ticks += 1;
         assert!(
             ticks < cap,
-            "{what:?}: not over: {:?} {}",
+            "{what}: not over: {:?} {}",
             rig.group.coord().state(),
             rig.describe()
         );
     }
     let chips: Vec<i64> = (0..n).map(|k| rig.chip_position(k)).collect();
-    let off = distance(&chips, &a, &d);
-    // Rests: nothing moves, no motion command, for 300 ms.
     for k in 0..n {
         rig.chain.bus_mut().device_mut(k).expect("chip").clear_log();
     }
@@ -529,16 +616,16 @@ fn interrupted(members: &[Member], at: u32, what: Interrupt) -> (i64, Option<(u8
         assert_eq!(
             rig.chip_position(k),
             chips[k],
-            "{what:?}: axis {k} moved after the stop"
+            "{what}: axis {k} moved after the stop"
         );
         let chip = rig.chain.bus().device(k).expect("chip");
         let moved: Vec<&Command> = chip.received().filter(|c| is_motion(c)).collect();
         assert!(
             moved.is_empty(),
-            "{what:?}: axis {k} was sent {moved:?} after the stop"
+            "{what}: axis {k} was sent {moved:?} after the stop"
         );
     }
-    (off, rig.group.coord().abort())
+    chips
 }
 
 /// A random group with at least one long component (the move lasts).
@@ -571,8 +658,14 @@ fn every_interruption_stops_the_group_on_its_line_and_it_rests() {
         let what = kinds[rng.below(kinds.len() as u64) as usize];
         let tick_ms = f64::from(members[0].cfg.tick_us) / 1000.0;
         let at = 1 + rng.below((600.0 / tick_ms) as u64) as u32;
-        let (off, abort) = interrupted(&members, at, what);
-        let ctx = format!("seed {seed} {what:?} at {at}: {members:?}");
+        // Half of them in a path of waypoints behind the move.
+        let waypoints = if rng.below(2) == 0 {
+            Vec::new()
+        } else {
+            random_waypoints(&mut rng, &members)
+        };
+        let (off, abort) = interrupted(&members, &waypoints, at, what);
+        let ctx = format!("seed {seed} {what:?} at {at}: {members:?} {waypoints:?}");
         let k8 = k as u8;
         let (slot, tol) = match what {
             // Braking along the line: as close as the chips follow it.
@@ -624,5 +717,307 @@ fn every_interruption_stops_the_group_on_its_line_and_it_rests() {
     eprintln!(
         "stopped off the line at most: soft stops {} µsteps, immediate stops {}, chip faults {}",
         worst[0], worst[1], worst[2]
+    );
+}
+
+// ---------------------------------------------------------------------
+// Paths: waypoints queued behind a coordinated move.
+
+/// What a path's run showed beyond `Seen`.
+#[derive(Debug, Default)]
+struct PathSeen {
+    /// Per junction passed: (its planned speed, the path's speed in the
+    /// tick that crossed it), path steps/s.
+    junctions: Vec<(u32, f64)>,
+    /// Junctions crossed with the path at rest, planned faster than one
+    /// tick of its deceleration (a stop in the path).
+    stops: usize,
+    /// Largest step (µsteps) the commanded position went past the last
+    /// waypoint along the last segment, on any axis.
+    past_end: i64,
+}
+
+/// The path in microsteps: the chips' start `a`, the members' targets,
+/// then every waypoint.
+fn polyline(members: &[Member], a: &[i64], waypoints: &[Vec<i64>]) -> Vec<Vec<i64>> {
+    let mut points = vec![a.to_vec()];
+    points.push(members.iter().map(|m| physical(m, m.target)).collect());
+    for w in waypoints {
+        let p: Vec<i64> = members
+            .iter()
+            .zip(w)
+            .map(|(m, &t)| physical(m, t))
+            .collect();
+        // A waypoint equal to the last one queues nothing.
+        if points.last() != Some(&p) {
+            points.push(p);
+        }
+    }
+    points
+}
+
+/// Queue as many of `waypoints` as the queue takes now; how many.
+fn feed(rig: &mut Rig, waypoints: &[Vec<i64>]) -> usize {
+    let mut fed = 0;
+    while fed < waypoints.len() && rig.group.coord().queue_free() > 0 {
+        rig.group
+            .coord_append(&waypoints[fed])
+            .unwrap_or_else(|e| panic!("waypoint {fed} refused: {e:?}"));
+        fed += 1;
+    }
+    fed
+}
+
+/// Waypoints behind a random group's move: 3–24 of them; a member with no
+/// distance to go in the move keeps its place (it rests through the
+/// path), the others go on by nothing, a few steps, or far (up to half a
+/// second at their max speed), so segments of every length and zero
+/// components come.
+fn random_waypoints(rng: &mut Rng, members: &[Member]) -> Vec<Vec<i64>> {
+    let rows = 3 + rng.below(22) as usize;
+    let mut at: Vec<i64> = members.iter().map(|m| m.target).collect();
+    if at.iter().all(|t| *t == 0) {
+        // Nothing moves: the move is done at once and takes no waypoint.
+        return Vec::new();
+    }
+    (0..rows)
+        .map(|_| {
+            for (p, m) in at.iter_mut().zip(members) {
+                if m.target == 0 {
+                    continue;
+                }
+                *p += match rng.below(4) {
+                    0 => 0,
+                    1 => rng.range(-5, 5),
+                    _ => {
+                        let far = i64::from(m.limits.max_speed / 2).max(10);
+                        rng.range(-far, far)
+                    }
+                };
+            }
+            at.clone()
+        })
+        .collect()
+}
+
+/// The polyline `points` (µsteps): is `p` within `tol` of segment `j`?
+fn on_segment(p: &[i64], points: &[Vec<i64>], j: usize, tol: i64) -> bool {
+    let a = &points[j];
+    let d: Vec<i64> = points[j + 1].iter().zip(a).map(|(b, a)| b - a).collect();
+    on_line(p, a, &d, tol)
+}
+
+/// Distance of `p` from the segments `from..=to` of the polyline (cut to
+/// its last segment).
+fn polyline_distance(p: &[i64], points: &[Vec<i64>], from: usize, to: usize) -> i64 {
+    let last = points.len() - 2;
+    (from.min(last)..=to.min(last))
+        .map(|s| least(|t| on_segment(p, points, s, t)))
+        .min()
+        .unwrap_or(i64::MAX)
+}
+
+/// Run a path: the coordinated move of `members` to their targets, then
+/// `waypoints` (logical steps, one per member each) queued as the queue
+/// drains; the oracle's figures, measured from the chips and the commands
+/// they were sent.
+fn run_path(
+    members: &[Member],
+    waypoints: &[Vec<i64>],
+    path: Limits,
+    cap_ticks: u32,
+) -> (Rig, Seen, PathSeen) {
+    let (mut rig, a, _) = start_line(members, path);
+    let n = members.len();
+    let points = polyline(members, &a, waypoints);
+    let mut seen = Seen::new(n);
+    let mut ps = PathSeen::default();
+    let mut meter = Meter::new(&mut rig, members);
+    let mut fed = 0usize;
+    let end = points.last().unwrap().clone();
+    let before_end = points[points.len() - 2].clone();
+    for t in 0..cap_ticks {
+        fed += feed(&mut rig, &waypoints[fed..]);
+        let coord = rig.group.coord();
+        let next = coord.queue().get(0).map(|q| q.junction());
+        let passed = coord.passed();
+        rig.tick();
+        let coord = rig.group.coord();
+        if coord.passed() > passed {
+            let v = coord.line().map_or(0, |l| l.path_velocity_internal());
+            let per_s = 1e6 / f64::from(members[0].cfg.tick_us);
+            // At rest, where more than a tick of braking was planned (a
+            // junction slower than that may be crossed from rest: the
+            // braking's last tick ends anywhere below it).
+            let dec = coord.line().map_or(0, |l| l.path_limits().dec);
+            if v == 0 && f64::from(next.unwrap_or(0)) > f64::from(dec) / per_s {
+                ps.stops += 1;
+            }
+            let v = v as f64 / 2f64.powi(32) * per_s;
+            ps.junctions.push((next.unwrap_or(0), v));
+        }
+        let commanded: Vec<i64> = (0..n)
+            .map(|k| rig.group.axis(k).unwrap().profile_physical())
+            .collect();
+        let chips: Vec<i64> = (0..n).map(|k| rig.chip_position(k)).collect();
+        // The segment the bridge runs: the commanded positions must be on
+        // it; the chips, which lag, on it or one of the two before it.
+        let j = rig.group.coord().passed() as usize;
+        let off = polyline_distance(&commanded, &points, j, j);
+        if std::env::var("PATH_TRACE").is_ok() && off > 1 {
+            let st: Vec<String> = (0..n)
+                .map(|k| {
+                    let a = rig.group.axis(k).unwrap();
+                    format!(
+                        "{:?}/{:?}/{}",
+                        a.state(),
+                        a.profile().mode(),
+                        a.profile().velocity_internal()
+                    )
+                })
+                .collect();
+            eprintln!(
+                "OFF t {t} off {off} seg {j} {commanded:?} {:?} -> {:?} {st:?}",
+                points[j],
+                points[j + 1]
+            );
+        }
+        seen.commanded = seen.commanded.max(off);
+        seen.chips = seen
+            .chips
+            .max(polyline_distance(&chips, &points, j.saturating_sub(2), j));
+        if fed == waypoints.len() && j == points.len() - 2 {
+            // On the last segment: past its end, per axis.
+            for k in 0..n {
+                let d = end[k] - before_end[k];
+                let beyond = (commanded[k] - end[k]) * d.signum();
+                ps.past_end = ps.past_end.max(beyond);
+            }
+        }
+        meter.tick(&mut rig, members, &mut seen, t);
+        if fed == waypoints.len()
+            && rig.group.coord().state() == CoordState::Done
+            && rig.group.is_settled()
+        {
+            seen.ticks = t;
+            return (rig, seen, ps);
+        }
+    }
+    panic!(
+        "path not done in {cap_ticks} ticks: {:?} {:?} fed {fed} passed {} {}",
+        rig.group.coord().state(),
+        rig.group.coord().abort(),
+        rig.group.coord().passed(),
+        rig.describe()
+    );
+}
+
+/// The path oracle's bounds: on the polyline within a microstep
+/// (commanded), every axis within its limits, exact landing on the last
+/// waypoint and never past it, every junction at most at its planned
+/// speed.
+fn check_path(members: &[Member], last: &[i64], rig: &Rig, seen: &Seen, ps: &PathSeen, what: &str) {
+    assert!(
+        seen.commanded <= 1,
+        "{what}: commanded {} µsteps off the path",
+        seen.commanded
+    );
+    assert!(
+        ps.past_end <= 0,
+        "{what}: {} µsteps past the end",
+        ps.past_end
+    );
+    assert_eq!(rig.group.coord().abort(), None, "{what}");
+    lands_within_limits(members, last, rig, seen, what);
+    for (i, &(planned, v)) in ps.junctions.iter().enumerate() {
+        assert!(
+            v <= f64::from(planned) + 1.0,
+            "{what}: junction {i} crossed at {v} steps/s, planned at most {planned}"
+        );
+    }
+}
+
+/// Three axes around a 48-gon (XY) climbing in Z: 49 waypoints.
+fn circle_path() -> (Vec<Member>, Vec<Vec<i64>>) {
+    let r = 4_000.0;
+    let at = |i: usize| -> Vec<i64> {
+        let a = i as f64 * std::f64::consts::TAU / 48.0;
+        vec![
+            (r * a.cos()).round() as i64 - 4_000,
+            (r * a.sin()).round() as i64,
+            (i as i64) * 20,
+        ]
+    };
+    let first = at(0);
+    let members = vec![
+        Member {
+            cfg: config(4, StepSel::OneTwentyEighth, DriveMode::Voltage),
+            limits: lim(20_000, 200_000),
+            target: first[0] - 500,
+        },
+        Member {
+            cfg: config(3, StepSel::Sixteenth, DriveMode::Voltage),
+            limits: lim(15_000, 150_000),
+            target: first[1] - 400,
+        },
+        Member {
+            cfg: config(2, StepSel::OneTwentyEighth, DriveMode::Voltage),
+            limits: lim(2_000, 50_000),
+            target: first[2] - 40,
+        },
+    ];
+    let waypoints = (0..=48).map(at).collect();
+    (members, waypoints)
+}
+
+#[test]
+fn a_path_of_waypoints_runs_through_its_junctions_and_stops_on_the_last() {
+    let (members, waypoints) = circle_path();
+    let (rig, seen, ps) = run_path(&members, &waypoints, FAST, 200_000);
+    let last = waypoints.last().unwrap();
+    check_path(&members, last, &rig, &seen, &ps, "circle");
+    assert_eq!(ps.stops, 0, "the path never stops at a junction: {ps:?}");
+    assert_eq!(ps.junctions.len(), waypoints.len(), "every waypoint passed");
+    let speeds: Vec<i64> = ps.junctions.iter().map(|j| j.1.round() as i64).collect();
+    eprintln!(
+        "circle: {} ticks, commanded ≤ {} µstep off, chips ≤ {}, junction speeds {speeds:?} (planned {:?})",
+        seen.ticks,
+        seen.commanded,
+        seen.chips,
+        ps.junctions.iter().map(|j| j.0).collect::<Vec<_>>()
+    );
+}
+
+#[test]
+fn random_paths_stay_on_their_polyline_keep_every_axis_within_its_limits_and_stop_on_the_last_waypoint(
+) {
+    let seeds: u64 = std::env::var("COORD_SEEDS")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .unwrap_or(24);
+    let (mut chips, mut junctions, mut acc) = (0i64, 0usize, 0f64);
+    for seed in 0..seeds {
+        if std::env::var("COORD_SEED").is_ok_and(|v| v.parse() != Ok(seed)) {
+            continue;
+        }
+        let mut rng = Rng(0x9A7B_0000 + seed);
+        let members = random_group(&mut rng);
+        let waypoints = random_waypoints(&mut rng, &members);
+        let what = format!("seed {seed} {members:?} {waypoints:?}");
+        if std::env::var("PATH_TRACE").is_ok() {
+            eprintln!("{what}");
+        }
+        let (rig, seen, ps) = run_path(&members, &waypoints, FAST, 4_000_000);
+        let last = waypoints
+            .last()
+            .cloned()
+            .unwrap_or_else(|| members.iter().map(|m| m.target).collect());
+        check_path(&members, &last, &rig, &seen, &ps, &what);
+        chips = chips.max(seen.chips);
+        junctions += ps.junctions.len();
+        acc = acc.max(seen.run_acc.iter().copied().fold(0.0, f64::max));
+    }
+    eprintln!(
+        "random paths: chips off the polyline at most {chips} µsteps; {junctions} junctions; Run change / acc at most {acc:.3}"
     );
 }

@@ -11,7 +11,11 @@ const MEMBERS: u16 = 0x0802;
 const REFUSAL: u16 = 0x0803;
 const PATH: u16 = 0x0804;
 const TICKS: u16 = 0x080A;
+const QUEUE_FREE: u16 = 0x080C;
+const PASSED: u16 = 0x080D;
 const TARGETS: u16 = 0x0810;
+const QUEUE: u16 = 0x080E;
+const WAYPOINT: u16 = 0x0820;
 
 const DONE: u16 = 5;
 const ABORTED: u16 = 6;
@@ -172,7 +176,9 @@ fn half_a_32_bit_value_and_the_read_only_words_are_illegal_addresses() {
     assert_eq!(b.write(1, ABORT, 0), Err(ILLEGAL_ADDRESS));
     assert_eq!(b.write(1, TICKS, 0), Err(ILLEGAL_ADDRESS));
     assert_eq!(b.write_multiple(1, CMD, &[1, 0]), Err(ILLEGAL_ADDRESS));
-    assert_eq!(b.read(1, 0x0820, 1), Err(ILLEGAL_ADDRESS));
+    assert_eq!(b.read(1, 0x0830, 1), Err(ILLEGAL_ADDRESS));
+    assert_eq!(b.write(1, QUEUE_FREE, 0), Err(ILLEGAL_ADDRESS));
+    assert_eq!(b.write(1, PASSED, 0), Err(ILLEGAL_ADDRESS));
     assert_eq!(b.write(1, CMD, 2), Err(0x03));
 }
 
@@ -248,4 +254,153 @@ fn a_stop_of_a_member_with_no_distance_to_go_stops_the_group() {
     assert_eq!(b.read(1, ABORT, 1).unwrap(), [0x0202]);
     let p = b.position(1);
     assert!(p > 0 && p < 6000, "axis 0 stopped on the way: {p}");
+}
+
+/// One FC 0x10 write of a waypoint for members 0..3.
+fn waypoint(b: &mut ModbusBench, p: [i32; 3]) -> Result<(), u8> {
+    let regs: Vec<u16> = p.iter().flat_map(|t| words(*t)).collect();
+    b.write_multiple(1, WAYPOINT, &regs)
+}
+
+#[test]
+fn a_path_written_over_modbus_runs_through_its_waypoints_and_stops_on_the_last() {
+    let mut b = bench();
+    describe(&mut b, 0b111, [1000, 500, -200]);
+    b.write(1, CMD, 1).unwrap();
+    assert_eq!(b.read(1, QUEUE_FREE, 1).unwrap(), [16]);
+    let path = [[2000, 500, -400], [2000, 1500, -600], [1000, 1500, -800]];
+    for (i, p) in path.iter().enumerate() {
+        waypoint(&mut b, *p).unwrap();
+        assert_eq!(b.read(1, QUEUE_FREE, 1).unwrap(), [15 - i as u16]);
+    }
+    // The last waypoint reads back (the path's end).
+    assert_eq!(
+        b.read(1, WAYPOINT, 6).unwrap(),
+        [0, 1000, 0, 1500, 0xFFFF, 0xFCE0]
+    );
+    wait_for(&mut b, DONE, 10_000);
+    assert_eq!(
+        (b.position(1), b.position(2), b.position(3)),
+        (1000, 1500, -800)
+    );
+    assert_eq!(b.read(1, PASSED, 1).unwrap(), [3]);
+    assert_eq!(b.read(1, ABORT, 1).unwrap(), [0]);
+    assert_eq!(b.read(1, QUEUE_FREE, 1).unwrap(), [0], "no move runs");
+}
+
+#[test]
+fn a_waypoint_is_refused_with_its_reason_when_it_cannot_be_queued() {
+    let mut b = bench();
+    // No move runs: 6.
+    assert_eq!(waypoint(&mut b, [1, 2, 3]), Err(SERVER_FAILURE));
+    assert_eq!(b.read(1, REFUSAL, 1).unwrap(), [6]);
+    describe(&mut b, 0b011, [4000, 4000, 0]);
+    b.write(1, CMD, 1).unwrap();
+    // Half of a pair.
+    assert_eq!(
+        b.write_multiple(1, WAYPOINT, &[0, 1, 0]),
+        Err(ILLEGAL_ADDRESS)
+    );
+    // A write that misses a member's pair is kept, not queued; 1 to 0x0E
+    // queues what was written.
+    assert_eq!(b.write_multiple(1, WAYPOINT + 2, &[0, 4100]), Ok(()));
+    assert_eq!(b.write_multiple(1, WAYPOINT, &[0, 4100]), Ok(()));
+    assert_eq!(b.read(1, QUEUE_FREE, 1).unwrap(), [16]);
+    assert_eq!(b.write(1, QUEUE, 1), Ok(()));
+    assert_eq!(b.read(1, QUEUE_FREE, 1).unwrap(), [15]);
+    for k in 1..16 {
+        let v = 4100 + 10 * k;
+        assert_eq!(
+            b.write_multiple(1, WAYPOINT, &[0, v, 0, v]),
+            Ok(()),
+            "waypoint {k}"
+        );
+    }
+    assert_eq!(b.read(1, QUEUE_FREE, 1).unwrap(), [0]);
+    assert_eq!(
+        b.write_multiple(1, WAYPOINT, &[0, 9000, 0, 9000]),
+        Err(SERVER_FAILURE)
+    );
+    assert_eq!(b.read(1, REFUSAL, 1).unwrap(), [5], "the queue is full");
+    wait_for(&mut b, DONE, 20_000);
+    assert_eq!((b.position(1), b.position(2)), (4250, 4250));
+}
+
+#[test]
+fn a_waypoint_that_moves_a_member_resting_through_the_move_is_refused() {
+    let mut b = bench();
+    describe(&mut b, 0b111, [3000, 3000, 0]);
+    b.write(1, CMD, 1).unwrap();
+    assert_eq!(waypoint(&mut b, [3000, 3500, 10]), Err(SERVER_FAILURE));
+    assert_eq!(b.read(1, REFUSAL, 1).unwrap(), [0x0207]);
+    assert_eq!(waypoint(&mut b, [3000, 3500, 0]), Ok(()));
+    wait_for(&mut b, DONE, 10_000);
+    assert_eq!((b.position(2), b.position(3)), (3500, 0));
+}
+
+#[test]
+fn a_stop_during_a_path_brakes_along_it_and_the_group_rests() {
+    let mut b = bench();
+    describe(&mut b, 0b111, [3000, 10, 10]);
+    b.write(1, CMD, 1).unwrap();
+    waypoint(&mut b, [3000, 3000, 20]).unwrap();
+    waypoint(&mut b, [0, 3000, 30]).unwrap();
+    b.run(2_000);
+    b.write(1, CMD, 0).unwrap();
+    wait_for(&mut b, ABORTED, 3_000);
+    assert_eq!(b.read(1, ABORT, 1).unwrap(), [0xFF01]);
+    let p = [b.position(1), b.position(2), b.position(3)];
+    // On the path: one of its three segments (±1 step).
+    let on = |a: [i32; 3], d: [i32; 3]| -> bool {
+        let k = if d[0] != 0 { 0 } else { 1 };
+        let f = f64::from(p[k] - a[k]) / f64::from(d[k]);
+        (0.0..=1.0).contains(&f)
+            && (0..3)
+                .all(|i| (f64::from(a[i]) + f * f64::from(d[i]) - f64::from(p[i])).abs() <= 1.5)
+    };
+    assert!(
+        on([0, 0, 0], [3000, 10, 10])
+            || on([3000, 10, 10], [0, 2990, 10])
+            || on([3000, 3000, 20], [-3000, 0, 10]),
+        "stopped off the path: {p:?}"
+    );
+    b.run(300);
+    assert_eq!([b.position(1), b.position(2), b.position(3)], p, "rests");
+}
+
+#[test]
+fn a_broadcast_start_starts_the_move_once_and_records_no_refusal() {
+    let mut b = bench();
+    describe(&mut b, 0b011, [2000, 2000, 0]);
+    let req = host_tests::modbus_bench::adu(&[0, 0x06, 0x08, 0x00, 0, 1]);
+    assert_eq!(b.transact(&req), None, "a broadcast is never answered");
+    b.run(20);
+    assert_eq!(b.read(1, REFUSAL, 1).unwrap(), [0]);
+    wait_for(&mut b, DONE, 5_000);
+    assert_eq!((b.position(1), b.position(2)), (2000, 2000));
+}
+
+/// Over I2C a write carries three registers: the waypoint's pairs one by
+/// one, then 1 to 0x080E queues it.
+#[test]
+fn i2c_writes_a_waypoint_pair_by_pair_and_queues_it() {
+    use host_tests::i2c_bench::I2cBench;
+    let mut b = I2cBench::new(2, Settings::FACTORY);
+    assert!(b.write(1, &[0x73, 0x08, 0x02, 0x00, 0x03]));
+    assert!(b.write(1, &[0x73, 0x08, 0x10, 0, 0, 0x01, 0x90]));
+    assert!(b.write(1, &[0x73, 0x08, 0x12, 0, 0, 0x00, 0xC8]));
+    assert!(b.write(1, &[0x73, 0x08, 0x00, 0x00, 0x01]));
+    assert_eq!(b.read(1, 1).unwrap(), [0], "started");
+    // Waypoint (800, −100): axis 0's pair, axis 1's pair, then queue.
+    assert!(b.write(1, &[0x73, 0x08, 0x20, 0, 0, 0x03, 0x20]));
+    assert_eq!(b.read(1, 1).unwrap(), [0]);
+    assert!(b.write(1, &[0x73, 0x08, 0x22, 0xFF, 0xFF, 0xFF, 0x9C]));
+    assert_eq!(b.read(1, 1).unwrap(), [0]);
+    assert!(b.write(1, &[0x73, 0x08, 0x0E, 0x00, 0x01]));
+    assert_eq!(b.read(1, 1).unwrap(), [0], "queued");
+    b.run(4000);
+    assert!(b.write(1, &[0x72, 0x08, 0x00, 1]));
+    assert_eq!(b.read(1, 3).unwrap(), [0, 0, DONE as u8]);
+    assert_eq!(b.bridge.axis(0).unwrap().actual_position(), 800);
+    assert_eq!(b.bridge.axis(1).unwrap().actual_position(), -100);
 }

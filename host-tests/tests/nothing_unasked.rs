@@ -53,6 +53,7 @@ const COORD_CMD: u16 = 0x0800;
 const COORD_MEMBERS: u16 = 0x0802;
 const COORD_PATH: u16 = 0x0804;
 const COORD_TARGETS: u16 = 0x0810;
+const COORD_WAYPOINT: u16 = 0x0820;
 /// Homing registers (extension 0x04nn).
 const HOMING_CMD: u16 = 0x0400;
 const HOMING_RESULT: u16 = 0x0401;
@@ -187,6 +188,8 @@ struct Counts {
     groups: u64,
     group_members: u64,
     group_stops: u64,
+    /// Waypoints queued behind them.
+    waypoints: u64,
 }
 
 struct World {
@@ -1124,6 +1127,32 @@ impl World {
         }
         self.counts.groups += 1;
         self.counts.group_members += members.len() as u64;
+        // Half of them go on through a path of 1–8 waypoints (one write
+        // each; a member with no distance to go rests through it). The
+        // members end on the last waypoint accepted.
+        if rng.below(2) == 0 {
+            let mut at = targets;
+            for _ in 0..1 + rng.below(8) {
+                for &k in &members {
+                    if targets[k] != self.position(k) && rng.below(3) != 0 {
+                        let per_full = 1i64 << self.ax[k].mode;
+                        let span = per_full * rng.range(0, 200);
+                        at[k] = (at[k] + rng.range(-span, span)).clamp(-(1 << 24), 1 << 24);
+                    }
+                }
+                let regs: Vec<u16> = at
+                    .iter()
+                    .flat_map(|t| [(*t as u32 >> 16) as u16, *t as u16])
+                    .collect();
+                let queued = self
+                    .bridge
+                    .ext_write_from(Bus::Modbus, 0, COORD_WAYPOINT, &regs)
+                    .is_ok();
+                assert!(queued, "a waypoint is taken while the move starts");
+                targets = at;
+                self.counts.waypoints += 1;
+            }
+        }
         for &k in &members {
             let a = &mut self.ax[k];
             a.expect = Expect::At(targets[k]);
@@ -1257,7 +1286,7 @@ fn random_run(n: usize, sequences: usize, seed: u64, tick_us: u32) -> World {
          ({} uninterrupted, {} of them arrived), position 0 at most {} µsteps off the edge, at most {} µsteps into the cam; \
          BINx presses {}, WH writes asleep {}, chip resets {}, watchdog trips {}, end-switch stops {}, \
          interruptions [stop, soft, zero, sleep, abort, reset] {:?}; coordinated moves {} ({} members, \
-         {} stopped by a member)",
+         {} waypoints, {} stopped by a member)",
         1_000_000 / tick_us,
         if w.bridge.is_overlapped() { " (overlapped)" } else { "" },
         w.now(),
@@ -1280,6 +1309,7 @@ fn random_run(n: usize, sequences: usize, seed: u64, tick_us: u32) -> World {
         c.interruptions,
         c.groups,
         c.group_members,
+        c.waypoints,
         c.group_stops,
     );
     for v in w.violations.iter().take(12) {

@@ -14,7 +14,7 @@
 //! | watchdog | 0x05nn | communication watchdog per bus ([`watchdog`]) | bridge |
 //! | axis | 0x06nn | signed speed, position, target, state ([`axis`]) | axis |
 //! | configured | 0x07nn | what the bridge configures in chip register `nn`, and which registers it configures ([`configured`]) | axis |
-//! | coordinated move | 0x08nn | members, targets and path limits of a straight-line move of several axes, start/stop, state ([`coord`]) | bridge |
+//! | coordinated move | 0x08nn | members, targets and path limits of a straight-line move of several axes, start/stop, state, the path queue's waypoints and free space ([`coord`]) | bridge |
 //!
 //! With no chip detected the bridge still answers on its first address (axis
 //! 0 of every bus): the bridge-scope blocks (I/O extension, diagnostics,
@@ -46,6 +46,17 @@ pub mod block {
     pub const AXIS: u8 = 0x06;
     pub const CONFIGURED: u8 = 0x07;
     pub const COORD: u8 = 0x08;
+}
+
+/// The block of `address` is the bridge's, not an axis's (the table's
+/// scope): a broadcast write to it is executed once, not once per axis (a
+/// coordinated move started, a waypoint queued once).
+pub fn is_bridge_wide(address: u16) -> bool {
+    let [blk, _] = address.to_be_bytes();
+    matches!(
+        blk,
+        block::IOEXT | block::DIAG | block::WATCHDOG | block::COORD
+    )
 }
 
 /// Diagnostics (0x03nn): u32 counters in two registers, high word first.
@@ -210,10 +221,12 @@ pub mod coord {
     pub const ABORT: u8 = 0x01;
     /// Bit k: chain axis k is a member.
     pub const MEMBERS: u8 = 0x02;
-    /// Why the last start was refused: 0 none, 1 a move is under way, 2 a
-    /// member past the chain or no member, 3 a member not ready (not at
-    /// rest, asleep, faulted, homing, or not in position mode; chain index
-    /// · 256 + 3), 4 a component longer than 2³² steps.
+    /// Why the last start or waypoint was refused: 0 none, 1 a move is
+    /// under way, 2 a member past the chain or no member, 3 a member not
+    /// ready (not at rest, asleep, faulted, homing, or not in position
+    /// mode; chain index · 256 + 3), 4 a component longer than 2³² steps,
+    /// 5 the queue is full, 6 no move starts or runs, 7 a waypoint moves a
+    /// member that rests through the move (chain index · 256 + 7).
     pub const REFUSAL: u8 = 0x03;
     /// u32 each: the path's max speed, acceleration, deceleration, in steps
     /// of the member that travels farthest (per s, per s²); 0 = none (the
@@ -223,8 +236,26 @@ pub mod coord {
     pub const PATH_DEC: u8 = 0x08;
     /// u32: control ticks the line has run (its duration once over).
     pub const TICKS: u8 = 0x0A;
+    /// Read-only: waypoints that can still be queued behind the move (a
+    /// path, [`WAYPOINT`]; 0 when no move starts or runs).
+    pub const QUEUE_FREE: u8 = 0x0C;
+    /// Read-only: waypoints the path has passed without stopping (up to
+    /// 65 535).
+    pub const PASSED: u8 = 0x0D;
     /// i32 each, high word first: the target of chain axis k at 0x10 + 2k,
     /// in that axis's logical steps.
     pub const TARGETS: u8 = 0x10;
-    pub const LEN: usize = 0x20;
+    /// Write 1: queue the waypoint written at [`WAYPOINT`] (for a bus that
+    /// cannot write every member's pair at once: I2C carries three
+    /// registers a write).
+    pub const QUEUE: u8 = 0x0E;
+    /// i32 each, high word first, chain axis k at 0x20 + 2k: the next
+    /// waypoint. One write that holds every member's pair (from the lowest
+    /// member's to the highest's; other axes' pairs are kept, not used)
+    /// queues it behind the move while it starts or runs, and the path
+    /// goes on to it from the last one; a write of fewer pairs keeps them
+    /// for [`QUEUE`]. Reads the waypoint written (the last queued one once
+    /// it is).
+    pub const WAYPOINT: u8 = 0x20;
+    pub const LEN: usize = 0x30;
 }

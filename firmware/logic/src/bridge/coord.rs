@@ -5,6 +5,7 @@
 use super::{Bridge, Bus};
 use crate::ext_space::{coord, ExtError};
 use crate::motion::coord::CoordError;
+use crate::motion::coordinated::AppendError;
 use crate::motion::{AbortReason, AxisFault, CoordState, Limits, StartError};
 use crate::postep60::settings::DriverMode;
 use crate::powerstep::chain::{ChainBus, MAX_DEVICES};
@@ -18,8 +19,11 @@ pub(super) struct CoordRegs {
     targets: [i32; MAX_DEVICES],
     /// Path max speed, acceleration, deceleration (0 = none).
     path: [u32; 3],
-    /// Why the last start was refused ([`coord::REFUSAL`]).
+    /// Why the last start or waypoint was refused ([`coord::REFUSAL`]).
     refusal: u16,
+    /// The waypoint being written (chain axes 0..8; the last one queued
+    /// once it is; the targets at a start).
+    waypoint: [i32; MAX_DEVICES],
 }
 
 fn state_code(s: CoordState) -> u16 {
@@ -47,6 +51,15 @@ fn abort_code(abort: Option<(u8, AbortReason)>) -> u16 {
         AbortReason::Fault(AxisFault::ChainError) => 6,
     };
     u16::from(k) << 8 | reason
+}
+
+fn append_code(e: AppendError) -> u16 {
+    match e {
+        AppendError::Full => 5,
+        AppendError::NotRunning => 6,
+        AppendError::Resting(k) => u16::from(k) << 8 | 7,
+        AppendError::Line(_) => 4,
+    }
 }
 
 fn refusal_code(e: StartError) -> u16 {
@@ -86,8 +99,23 @@ impl<B: ChainBus> Bridge<B> {
             put32(&mut r, word(coord::PATH_SPEED, i), *v);
         }
         put32(&mut r, usize::from(coord::TICKS), run.ticks());
+        let queue = [
+            (coord::QUEUE_FREE, run.queue_free() as u16),
+            (
+                coord::PASSED,
+                u16::try_from(run.passed()).unwrap_or(u16::MAX),
+            ),
+        ];
+        for (at, v) in queue {
+            if let Some(slot) = r.get_mut(usize::from(at)) {
+                *slot = v;
+            }
+        }
         for (k, t) in c.targets.iter().enumerate() {
             put32(&mut r, word(coord::TARGETS, k), *t as u32);
+        }
+        for (k, t) in c.waypoint.iter().enumerate() {
+            put32(&mut r, word(coord::WAYPOINT, k), *t as u32);
         }
         r
     }
@@ -98,6 +126,16 @@ impl<B: ChainBus> Bridge<B> {
         let end = usize::from(offset).saturating_add(data.len());
         if data.is_empty() || end > coord::LEN {
             return Err(ExtError::IllegalAddress);
+        }
+        if offset >= coord::WAYPOINT {
+            return self.coord_waypoint(offset, data);
+        }
+        if offset == coord::QUEUE {
+            return match data {
+                [1] => self.coord_queue(),
+                [_] => Err(ExtError::IllegalValue),
+                _ => Err(ExtError::IllegalAddress),
+            };
         }
         if offset == coord::COMMAND {
             // One register: the description is written before it.
@@ -128,7 +166,7 @@ impl<B: ChainBus> Bridge<B> {
         };
         let start = usize::from(offset);
         let range = start..start.saturating_add(data.len());
-        if range.clone().any(ro) {
+        if range.clone().any(ro) || range.end > usize::from(coord::WAYPOINT) {
             return Err(ExtError::IllegalAddress);
         }
         // Every 32-bit value whole.
@@ -208,10 +246,83 @@ impl<B: ChainBus> Bridge<B> {
         match result {
             Ok(()) => {
                 self.coord.refusal = 0;
+                self.coord.waypoint = c.targets;
                 Ok(())
             }
             Err(e) => {
                 self.coord.refusal = refusal_code(e);
+                Err(ExtError::Refused)
+            }
+        }
+    }
+
+    /// A write of `data` at `offset` (at or after [`coord::WAYPOINT`]):
+    /// pairs of the next waypoint (32-bit values whole), kept; a write that
+    /// holds every running member's pair queues it at once (the block's
+    /// doc), else [`coord::QUEUE`] does.
+    fn coord_waypoint(&mut self, offset: u8, data: &[u16]) -> Result<(), ExtError> {
+        let base = usize::from(coord::WAYPOINT);
+        let start = usize::from(offset);
+        let end = start.saturating_add(data.len());
+        let odd = |a: usize| a.abs_diff(base) % 2 == 1;
+        if odd(start) || odd(end) {
+            return Err(ExtError::IllegalAddress);
+        }
+        let state = self.group.coord().state();
+        if !matches!(state, CoordState::Starting | CoordState::Running) {
+            self.coord.refusal = append_code(AppendError::NotRunning);
+            return Err(ExtError::Refused);
+        }
+        let first_axis = start.saturating_sub(base) / 2;
+        for (j, pair) in data.chunks(2).enumerate() {
+            let v = match pair {
+                [hi, lo] => (u32::from(*hi) << 16 | u32::from(*lo)) as i32,
+                _ => return Err(ExtError::IllegalAddress),
+            };
+            if let Some(p) = self.coord.waypoint.get_mut(first_axis.saturating_add(j)) {
+                *p = v;
+            }
+        }
+        let members = self.group.coord().members();
+        let (Some(&lo), Some(&hi)) = (members.first(), members.last()) else {
+            return Ok(());
+        };
+        // Members are in chain order (the block's mask).
+        let first = word(coord::WAYPOINT, usize::from(lo));
+        let past = word(coord::WAYPOINT, usize::from(hi)).saturating_add(2);
+        if start <= first && end >= past {
+            self.coord_queue()
+        } else {
+            Ok(())
+        }
+    }
+
+    /// Queue the waypoint written (its members' pairs) behind the move.
+    fn coord_queue(&mut self) -> Result<(), ExtError> {
+        let members = self.group.coord().members();
+        let n = members.len();
+        let mut targets = [0i64; MAX_DEVICES];
+        for (t, &k) in targets.iter_mut().zip(members) {
+            *t = i64::from(
+                self.coord
+                    .waypoint
+                    .get(usize::from(k))
+                    .copied()
+                    .unwrap_or(0),
+            );
+        }
+        let r = if n == 0 {
+            Err(AppendError::NotRunning)
+        } else {
+            self.group.coord_append(targets.get(..n).unwrap_or(&[]))
+        };
+        match r {
+            Ok(()) => {
+                self.coord.refusal = 0;
+                Ok(())
+            }
+            Err(e) => {
+                self.coord.refusal = append_code(e);
                 Err(ExtError::Refused)
             }
         }

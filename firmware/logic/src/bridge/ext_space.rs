@@ -106,7 +106,10 @@ impl<B: ChainBus> Bridge<B> {
     ) -> Result<(), ExtError> {
         let r = self.ext_write(k, address, data);
         let start = u16::from_be_bytes([block::COORD, coord::COMMAND]);
-        if r.is_ok() && address == start && data.first() == Some(&1) {
+        let waypoint = u16::from_be_bytes([block::COORD, coord::WAYPOINT]);
+        let queue = u16::from_be_bytes([block::COORD, coord::QUEUE]);
+        let started = (address == start || address == queue) && data.first() == Some(&1);
+        if r.is_ok() && (started || address >= waypoint && address >> 8 == waypoint >> 8) {
             self.coord_started_by(bus);
         }
         r

@@ -1,10 +1,18 @@
 //! Coordinated moves, the pure parts: the shared profile of a straight-line
 //! move of several axes ([`Line`]), the speed through a junction of two
-//! segments ([`junction_speed`]) and the look-ahead over queued segments
-//! ([`plan_speeds`]). A [`Line`] runs on the chips through
-//! [`crate::motion::coordinated`] (extension 0x08nn); the path queue that
-//! would run segments with their exit speeds is not built yet (listed as
-//! missing in the README).
+//! segments ([`junction_speed`], [`path_junction`]), the look-ahead over
+//! queued segments ([`PathQueue`]; [`plan_speeds`] is its continuous
+//! reference) and a queued segment's precomputed geometry ([`Queued`]). A
+//! [`Line`] and the path behind it run on the chips through
+//! [`crate::motion::coordinated`] (extension 0x08nn).
+//!
+//! * **Paths.** Every queued segment's planned entry speed can be braked
+//!   from, in the profile's own discrete kinematics, down to its end's
+//!   planned speed within its length (less the travel of the tick that
+//!   enters it), and the last waypoint's speed is 0: a path that is given
+//!   nothing more stops exactly on its last waypoint. No segment is
+//!   entered faster than its junction ([`path_junction`]) or either
+//!   neighbour's max speed allows.
 //!
 //! # What it guarantees
 //!
@@ -30,7 +38,9 @@
 //!   `|dᵢ| ≤ 2³²` keeps every product below 2⁹⁵. A longer component is
 //!   refused ([`CoordError::TooLong`]).
 
-use super::profile::{round_fine, Limits, Profile, POS_FRAC};
+use super::profile::{
+    acc_to_internal, braking_distance, round_fine, speed_to_internal, Limits, Profile, POS_FRAC,
+};
 use crate::powerstep::chain::MAX_DEVICES;
 
 /// Axes in one coordinated move: a chain's most.
@@ -242,6 +252,305 @@ pub fn plan_speeds(speed: u32, segments: &[Segment], out: &mut [u32]) -> Result<
     Ok(())
 }
 
+/// Waypoints a group's path queue holds beyond the segment running.
+pub const PATH_QUEUE: usize = 16;
+
+/// A queued segment of a path: where it goes from the waypoint before it
+/// (its geometry), its path limits, and the speed the look-ahead plans at
+/// its start ([`PathQueue`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Queued {
+    pub(super) delta: [i64; MAX_AXES],
+    pub(super) ratio: [i64; MAX_AXES],
+    pub(super) inv: u64,
+    pub(super) shift: u32,
+    /// `L`, steps of its farthest axis (≥ 1).
+    pub(super) length: i64,
+    /// Its path limits ([`Line`]'s rule for its own components), and them
+    /// in the profile's units ([`Profile::internal_of`]).
+    pub(super) limits: Limits,
+    pub(super) internal: (i64, i64, i64),
+    /// Its deceleration and the segment before it's, 2⁻³² steps/tick².
+    pub(super) dec: i64,
+    dec_before: i64,
+    /// The highest speed at its start, 2⁻³² steps/tick: its junction's
+    /// ([`path_junction`]) and both segments' max speeds.
+    cap: i64,
+    /// The speed planned at its start, 2⁻³² steps/tick ([`PathQueue`]).
+    pub(super) entry: i64,
+    /// Its junction's speed, path steps/s (for the status).
+    pub(super) junction: u32,
+}
+
+const NO_SEGMENT: Queued = Queued {
+    delta: [0; MAX_AXES],
+    ratio: [0; MAX_AXES],
+    inv: 0,
+    shift: 0,
+    length: 0,
+    limits: Limits {
+        max_speed: 1,
+        acc: 1,
+        dec: 1,
+    },
+    internal: (1, 1, 1),
+    dec: 1,
+    dec_before: 1,
+    cap: 0,
+    entry: 0,
+    junction: 0,
+};
+
+/// The time whose worth of acceleration a path's junction may change an
+/// axis's velocity by at once, µs ([`path_junction`]).
+pub const JUNCTION_US: u32 = 500;
+
+/// The speed through a path's junction: [`junction_speed`] over
+/// [`JUNCTION_US`] instead of a tick, whatever the tick: no axis's velocity
+/// jumps by more than half a millisecond of the smaller of its
+/// acceleration and deceleration. Its chip follows the jump with its own
+/// ramp (its ACC and DEC registers are the axis's limits) within 0.5 ms,
+/// behind the line by at most `acc · (0.5 ms)² / 2` (0.025 steps at
+/// 200 000 steps/s²), and the tick that crosses the junction changes the
+/// velocity by that and the path's own change in the tick (at most one
+/// tick of the axis's acceleration, by the segment's scaling). The same
+/// corners at every tick rate. (`d_in`, `d_out` the segments' components,
+/// `limits` the members'.)
+pub fn path_junction(d_in: &[i64], d_out: &[i64], limits: &[Limits]) -> Result<u32, CoordError> {
+    junction_speed(d_in, d_out, limits, JUNCTION_US)
+}
+
+/// The largest speed `v` (2⁻³² steps/tick) whose discrete braking distance
+/// at `dec` is at most `room` (2⁻³³ steps): `D(v) ≤ v²/dec + dec/4`
+/// (profile's module doc), so `v = ⌊√((room − ⌊dec/4⌋) · dec)⌋` never
+/// needs more (and is within `dec²/8v + 1` of the largest).
+fn top_speed(room: i128, dec: i64) -> i64 {
+    let quarter = i128::from(dec.max(1) / 4);
+    let Some(r) = room.checked_sub(quarter).filter(|r| *r > 0) else {
+        return 0;
+    };
+    // A saturated product only lowers the speed.
+    let p = (r as u128).saturating_mul(u128::from(dec.max(1).unsigned_abs()));
+    i64::try_from(p.isqrt()).unwrap_or(i64::MAX)
+}
+
+impl Queued {
+    /// The segment `delta` (each member's component) after a segment
+    /// `before` (its components and path limits), for members with
+    /// `limits` (as a [`Line`] scales them) and the group's `path` limits,
+    /// ticked every `tick_us` µs. `Ok(None)` for a segment of no length.
+    pub fn plan(
+        tick_us: u32,
+        before: (&[i64], Limits),
+        delta: &[i64],
+        limits: &[Limits],
+        path: Limits,
+    ) -> Result<Option<Queued>, CoordError> {
+        let n = delta.len();
+        let length = checked_length(delta, &[limits.len(), before.0.len()])?;
+        if length == 0 {
+            return Ok(None);
+        }
+        let own = path_limits(delta, length, limits, path);
+        let junction = path_junction(before.0, delta, limits)?;
+        let (ratio, inv, shift) = geometry(delta, &[], length);
+        let mut d = [0i64; MAX_AXES];
+        if let Some(dst) = d.get_mut(..n) {
+            dst.copy_from_slice(delta);
+        }
+        let top = own.max_speed.min(before.1.max_speed).min(junction);
+        Ok(Some(Queued {
+            delta: d,
+            ratio,
+            inv,
+            shift,
+            // checked_length: ≤ 2³².
+            length: length as i64,
+            limits: own,
+            internal: Profile::internal_of(tick_us, own),
+            dec: acc_to_internal(own.dec.max(1), tick_us),
+            dec_before: acc_to_internal(before.1.dec.max(1), tick_us),
+            cap: if top == 0 {
+                0
+            } else {
+                speed_to_internal(top, tick_us)
+            },
+            entry: 0,
+            junction,
+        }))
+    }
+
+    /// Its junction's speed ([`path_junction`]), path steps/s.
+    pub fn junction(&self) -> u32 {
+        self.junction
+    }
+
+    /// The speed the look-ahead plans at its start, 2⁻³² steps/tick.
+    pub fn entry(&self) -> i64 {
+        self.entry
+    }
+
+    /// Its length, steps of its farthest axis.
+    pub fn length(&self) -> i64 {
+        self.length
+    }
+
+    /// The highest speed at the segment's start from which the path still
+    /// leaves it at no more than `exit` (its end's planned speed), braking
+    /// with its deceleration, however the tick that enters it falls: it
+    /// enters up to `2·v + dec_before` past its start (one tick's travel
+    /// from a speed at most one tick of braking above `v`). At most `cap`.
+    // Bounded: length ≤ 2³² (· 2³³ < 2⁶⁶), braking distances below 2¹²⁷.
+    #[allow(clippy::arithmetic_side_effects)]
+    fn entry_speed(&self, exit: i64) -> i64 {
+        let room = (i128::from(self.length) << POS_FRAC) + braking_distance(exit, self.dec)
+            - i128::from(self.dec_before);
+        let first = top_speed(room, self.dec);
+        let v = top_speed(room - 2 * i128::from(first), self.dec);
+        v.min(self.cap)
+    }
+}
+
+/// The segments queued behind the one a path runs (a ring of
+/// [`PATH_QUEUE`]) with the look-ahead's speeds: every segment's planned
+/// entry is the highest from which the path can still stop on the last
+/// queued waypoint braking with each segment's deceleration, within every
+/// junction's speed ([`path_junction`]) and each segment's max speed
+/// (the backward pass of [`plan_speeds`], in the profile's own discrete
+/// units and with a tick's margin at every junction). Appending can only
+/// raise the planned speeds, so a path that could stop on its old last
+/// waypoint can still meet the new plan; the pass stops at the first
+/// segment whose speed does not change.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PathQueue {
+    items: [Queued; PATH_QUEUE],
+    head: usize,
+    len: usize,
+}
+
+impl Default for PathQueue {
+    fn default() -> PathQueue {
+        PathQueue::new()
+    }
+}
+
+impl PathQueue {
+    pub const fn new() -> PathQueue {
+        PathQueue {
+            items: [NO_SEGMENT; PATH_QUEUE],
+            head: 0,
+            len: 0,
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Segments that can still be queued.
+    pub fn free(&self) -> usize {
+        PATH_QUEUE.saturating_sub(self.len)
+    }
+
+    pub fn clear(&mut self) {
+        self.len = 0;
+    }
+
+    fn slot(&self, i: usize) -> usize {
+        self.head.wrapping_add(i) % PATH_QUEUE
+    }
+
+    /// The `i`-th queued segment (0: the next to run).
+    pub fn get(&self, i: usize) -> Option<&Queued> {
+        if i >= self.len {
+            return None;
+        }
+        self.items.get(self.slot(i))
+    }
+
+    /// The last queued segment.
+    pub fn last(&self) -> Option<&Queued> {
+        self.get(self.len.checked_sub(1)?)
+    }
+
+    /// Queue `q` behind the others and plan again; `false` (nothing
+    /// queued) when the queue is full.
+    pub fn push(&mut self, q: Queued) -> bool {
+        if self.len >= PATH_QUEUE {
+            return false;
+        }
+        let at = self.slot(self.len);
+        if let Some(slot) = self.items.get_mut(at) {
+            *slot = q;
+        }
+        self.len = self.len.saturating_add(1);
+        self.plan();
+        true
+    }
+
+    /// The next segment to run, out of the queue.
+    pub fn pop(&mut self) -> Option<Queued> {
+        let q = *self.get(0)?;
+        self.head = self.slot(1);
+        self.len = self.len.saturating_sub(1);
+        Some(q)
+    }
+
+    /// The speed planned at the end of the segment running (the first
+    /// queued one's entry; 0 with none queued), 2⁻³² steps/tick.
+    pub fn exit_speed(&self) -> i64 {
+        self.get(0).map_or(0, |q| q.entry)
+    }
+
+    /// The backward pass (the type's doc).
+    fn plan(&mut self) {
+        let mut exit = 0i64;
+        for i in (0..self.len).rev() {
+            let at = self.slot(i);
+            let Some(q) = self.items.get_mut(at) else {
+                break;
+            };
+            let entry = q.entry_speed(exit);
+            if i.saturating_add(1) < self.len && entry == q.entry {
+                break;
+            }
+            q.entry = entry;
+            exit = entry;
+        }
+    }
+}
+
+/// A segment's shares of the path (module doc): `(dₖ − offsetₖ) · 2⁶² / L`
+/// for every axis, toward zero, and `L`'s normalised reciprocal with its
+/// shift (`s / L` in Q62 is `s · inv >> shift`).
+// L ≤ 2³² (checked_length) bounds z ≤ 33 and 62 + z ≤ 95; 33 + z ≤ 66.
+#[allow(clippy::arithmetic_side_effects)]
+fn geometry(deltas: &[i64], offsets: &[i64], length: u64) -> ([i64; MAX_AXES], u64, u32) {
+    // s / L in Q62 by a multiply: a reciprocal normalised to L's bits
+    // (2^(62 + z) / L with 2^(z − 1) ≤ L < 2^z: in (2⁶², 2⁶³]), so
+    // λ = s · inv / 2^(33 + z) is at most one unit below ⌊s · 2⁶² / L⌋.
+    let z = u64::BITS - length.leading_zeros();
+    let inv = (1u128 << (62 + z))
+        .checked_div(u128::from(length))
+        .map_or(0, |q| u64::try_from(q).unwrap_or(u64::MAX));
+    let mut ratio = [0i64; MAX_AXES];
+    for (k, (r, d)) in ratio.iter_mut().zip(deltas).enumerate() {
+        let o = offsets.get(k).copied().unwrap_or(0);
+        // The distance axis k travels, 2⁻³³ steps: |dₖ · 2³³ − oₖ| ≤
+        // 2⁶⁵ + 2³², so · 2²⁹ < 2⁹⁵; the quotient by L < 1.5 · 2⁶².
+        let fine = (i128::from(*d) << POS_FRAC).saturating_sub(i128::from(o));
+        let q = (fine.unsigned_abs() << (62 - POS_FRAC))
+            .checked_div(u128::from(length))
+            .map_or(0, |q| i64::try_from(q).unwrap_or(i64::MAX));
+        *r = if fine < 0 { q.wrapping_neg() } else { q };
+    }
+    (ratio, inv, POS_FRAC + z)
+}
+
 impl Line {
     /// Plan the move of the axes at `start` to `target` (logical steps),
     /// each within its `limits`, at most at the `path` limits (in steps of
@@ -316,23 +625,7 @@ impl Line {
         let length = checked_length(deltas, &[target.len(), limits.len()])?;
         let spans = spans.get(..n).unwrap_or(&[]);
         let mut profile = Profile::new(tick_us, path_limits(spans, length, limits, path));
-        // s / L in Q62 by a multiply: a reciprocal normalised to L's bits
-        // (2^(62 + z) / L with 2^(z − 1) ≤ L < 2^z: in (2⁶², 2⁶³]), so
-        // λ = s · inv / 2^(33 + z) is at most one unit below ⌊s · 2⁶² / L⌋.
-        let z = u64::BITS - length.leading_zeros();
-        let inv = (1u128 << (62 + z))
-            .checked_div(u128::from(length))
-            .map_or(0, |q| u64::try_from(q).unwrap_or(u64::MAX));
-        let mut ratio = [0i64; MAX_AXES];
-        for ((r, d), o) in ratio.iter_mut().zip(deltas).zip(&offset) {
-            // The distance axis k travels, 2⁻³³ steps: |dₖ · 2³³ − oₖ| ≤
-            // 2⁶⁵ + 2³², so · 2²⁹ < 2⁹⁵; the quotient by L < 1.5 · 2⁶².
-            let fine = (i128::from(*d) << POS_FRAC).saturating_sub(i128::from(*o));
-            let q = (fine.unsigned_abs() << (62 - POS_FRAC))
-                .checked_div(u128::from(length))
-                .map_or(0, |q| i64::try_from(q).unwrap_or(i64::MAX));
-            *r = if fine < 0 { q.wrapping_neg() } else { q };
-        }
+        let (ratio, inv, shift) = geometry(deltas, offset.get(..n).unwrap_or(&[]), length);
         // length ≤ 2³²: fits i64.
         let length = length as i64;
         profile.move_to(length);
@@ -343,7 +636,7 @@ impl Line {
             offset,
             ratio,
             inv,
-            shift: POS_FRAC + z,
+            shift,
             length,
             path: profile,
         })
@@ -558,6 +851,92 @@ mod tests {
         assert_eq!(plan_speeds(0, &[], &mut out), Ok(()));
         assert_eq!(out, [0]);
         assert_eq!(plan_speeds(1, &[], &mut out), Err(CoordError::CannotStop));
+    }
+
+    #[test]
+    fn a_path_corner_allows_half_a_millisecond_of_acceleration_at_any_tick() {
+        // X then Y: each axis's velocity jumps by v; 50 000 steps/s² · 0.5 ms.
+        assert_eq!(path_junction(&[100, 0], &[0, 300], &[LIM; 2]), Ok(25));
+        assert_eq!(
+            path_junction(&[100, 50], &[40, 20], &[LIM; 2]),
+            Ok(u32::MAX)
+        );
+    }
+
+    #[test]
+    fn the_top_speed_never_brakes_longer_than_its_room_and_is_near_the_largest() {
+        for dec in [1i64, 3, 1000, 858_993_459, 1 << 40] {
+            for room in [0i128, 1, 7, 1 << 20, 1 << 33, 1 << 50, 1 << 66] {
+                let v = top_speed(room, dec);
+                assert!(
+                    braking_distance(v, dec) <= room,
+                    "dec {dec} room {room}: {v}"
+                );
+                // Within dec²/8v + 1 of the largest: two more quanta (or one
+                // more tick of dec for a slow one) brake longer.
+                let slack = (i128::from(dec) * i128::from(dec) / (8 * i128::from(v.max(1))))
+                    .min(i128::from(dec)) as i64;
+                let more = v + 2 + slack;
+                assert!(
+                    braking_distance(more, dec) > room || more > (1 << 62),
+                    "dec {dec} room {room}: {v} is not near the largest"
+                );
+            }
+        }
+    }
+
+    fn segment(before: &[i64], delta: &[i64]) -> Queued {
+        Queued::plan(1000, (before, LIM), delta, &[LIM; 2], FAST)
+            .unwrap()
+            .unwrap()
+    }
+
+    #[test]
+    fn a_queue_plans_to_rest_on_its_last_waypoint_and_appending_only_raises_speeds() {
+        let mut q = PathQueue::new();
+        let a = segment(&[1000, 0], &[1000, 100]);
+        assert!(q.push(a));
+        // One segment: it ends at rest; its start as fast as its junction.
+        let first = q.exit_speed();
+        assert!(first > 0);
+        assert_eq!(first, a.entry_speed(0));
+        assert!(first <= a.cap);
+        assert!(q.push(segment(&[1000, 100], &[1000, 200])));
+        let second = q.exit_speed();
+        assert!(second >= first, "{second} < {first}");
+        assert_eq!(
+            q.get(1).map(|s| s.entry),
+            Some(q.get(1).unwrap().entry_speed(0))
+        );
+        assert_eq!(q.len(), 2);
+        assert_eq!(q.free(), PATH_QUEUE - 2);
+    }
+
+    #[test]
+    fn a_full_queue_takes_no_more_and_pops_in_order() {
+        let mut q = PathQueue::new();
+        for k in 0..PATH_QUEUE {
+            let s = segment(&[10, 0], &[10, k as i64]);
+            assert!(q.push(s));
+        }
+        assert!(!q.push(segment(&[10, 0], &[10, 0])));
+        assert_eq!(q.free(), 0);
+        for k in 0..PATH_QUEUE {
+            assert_eq!(q.pop().map(|s| s.delta[1]), Some(k as i64));
+        }
+        assert_eq!(q.pop(), None);
+        assert_eq!(q.exit_speed(), 0);
+    }
+
+    #[test]
+    fn a_segment_of_no_length_queues_nothing_and_a_reversal_is_slow() {
+        assert_eq!(
+            Queued::plan(1000, (&[5, 5], LIM), &[0, 0], &[LIM; 2], FAST),
+            Ok(None)
+        );
+        // Straight back: every axis's velocity flips, 2·v ≤ 25 steps/s.
+        let back = segment(&[100, 0], &[-100, 0]);
+        assert_eq!(back.junction(), 12);
     }
 
     #[test]

@@ -26,11 +26,30 @@
 //!   their soft stop brakes the group, anything taking them out of rest
 //!   stops it at once. After any of
 //!   them every member rests until a new motion command.
+//! * **Paths.** Waypoints queued behind the move ([`CoordRun::append`])
+//!   run on from its target without stopping where the look-ahead allows
+//!   ([`crate::motion::coord::PathQueue`]): each segment's profile runs
+//!   through its end at no more than the planned speed
+//!   ([`Line::aim_at`]), and in the tick that crosses it the next
+//!   segment takes over with the same path speed ([`Line::advance`]); the
+//!   last waypoint is landed on exactly, as a line's target. A stop brakes
+//!   on along the path, segment by segment, each with its own
+//!   deceleration.
 
 use super::axis::{Axis, AxisFault};
-use super::coord::{CoordError, Line, MAX_AXES};
+use super::coord::{CoordError, Line, PathQueue, Queued, MAX_AXES};
 use super::divisor::mul_wide;
-use super::profile::{round_fine, Limits, POS_FRAC};
+use super::profile::{braking_distance, round_fine, Limits, POS_FRAC};
+
+/// Junctions one tick may pass at most (the queue's length and one).
+const PATH_QUEUE_STEPS: usize = crate::motion::coord::PATH_QUEUE + 1;
+
+/// No path limit of its own.
+const ANY_PATH: Limits = Limits {
+    max_speed: u32::MAX,
+    acc: u32::MAX,
+    dec: u32::MAX,
+};
 
 /// What a coordinated move is doing.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -78,6 +97,22 @@ pub enum StartError {
     Line(CoordError),
 }
 
+/// Why a waypoint was not queued behind a coordinated move.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[cfg_attr(feature = "defmt", derive(defmt::Format))]
+pub enum AppendError {
+    /// No move is starting or running (a path that has ended, or is
+    /// stopping, takes no more waypoints: start a new move).
+    NotRunning,
+    /// The queue holds [`crate::motion::coord::PATH_QUEUE`] waypoints.
+    Full,
+    /// This member (chain index) rests through the move (it had no
+    /// distance to go at the start): it cannot join the path later.
+    Resting(u8),
+    /// The segment itself (a target per member, no component too long).
+    Line(CoordError),
+}
+
 /// The coordinated move of a group (at most one at a time).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct CoordRun {
@@ -94,6 +129,15 @@ pub struct CoordRun {
     abort: Option<(u8, AbortReason)>,
     /// Ticks the line has run.
     ticks: u32,
+    /// The waypoints queued behind the segment running (a path).
+    queue: PathQueue,
+    /// The last waypoint: the targets of the last queued segment, or of
+    /// the one running (line order).
+    last: [i64; MAX_AXES],
+    /// The path limits asked at the start (every segment's cap).
+    path: Limits,
+    /// Waypoints the path has passed.
+    passed: u32,
 }
 
 impl Default for CoordRun {
@@ -113,6 +157,10 @@ impl CoordRun {
             resting: 0,
             abort: None,
             ticks: 0,
+            queue: PathQueue::new(),
+            last: [0; MAX_AXES],
+            path: ANY_PATH,
+            passed: 0,
         }
     }
 
@@ -250,6 +298,10 @@ impl CoordRun {
                 }
             }
         }
+        let mut last = [0i64; MAX_AXES];
+        if let Some(dst) = last.get_mut(..n) {
+            dst.copy_from_slice(targets);
+        }
         *self = CoordRun {
             state: if moving == 0 {
                 CoordState::Done
@@ -263,8 +315,148 @@ impl CoordRun {
             resting,
             abort: None,
             ticks: 0,
+            queue: PathQueue::new(),
+            last,
+            path,
+            passed: 0,
         };
         Ok(())
+    }
+
+    /// Queue a waypoint behind the move (a path): `targets`, one per
+    /// member in the line's order, logical steps. The path runs on from
+    /// the last waypoint to it without stopping where the look-ahead
+    /// allows ([`PathQueue`]); a waypoint equal to the last one queues
+    /// nothing. Only while the move starts or runs.
+    pub fn append(&mut self, axes: &mut [Axis], targets: &[i64]) -> Result<(), AppendError> {
+        if !matches!(self.state, CoordState::Starting | CoordState::Running) {
+            return Err(AppendError::NotRunning);
+        }
+        if targets.len() != self.n {
+            return Err(AppendError::Line(CoordError::LengthMismatch));
+        }
+        if self.queue.free() == 0 {
+            return Err(AppendError::Full);
+        }
+        let mut delta = [0i64; MAX_AXES];
+        let mut limits = [ANY_PATH; MAX_AXES];
+        let mut tick_us = 1000;
+        for (i, (&t, &k)) in targets.iter().zip(self.member_list()).enumerate() {
+            let from = self.last.get(i).copied().unwrap_or(0);
+            let d =
+                i64::try_from(i128::from(t).saturating_sub(i128::from(from))).unwrap_or(i64::MAX);
+            if d != 0 && self.resting & (1 << i) != 0 {
+                return Err(AppendError::Resting(k));
+            }
+            let axis = axes.get_mut(usize::from(k));
+            if let (Some(dd), Some(l), Some(a)) = (delta.get_mut(i), limits.get_mut(i), axis) {
+                *dd = d;
+                *l = a.streaming_limits();
+                tick_us = a.config().tick_us;
+            }
+        }
+        let n = self.n;
+        let before = match (self.queue.last(), self.line.as_ref()) {
+            (Some(q), _) => (q.delta, q.limits),
+            (None, Some(l)) => (l.delta, l.path_limits()),
+            (None, None) => return Err(AppendError::NotRunning),
+        };
+        let q = Queued::plan(
+            tick_us,
+            (before.0.get(..n).unwrap_or(&[]), before.1),
+            delta.get(..n).unwrap_or(&[]),
+            limits.get(..n).unwrap_or(&[]),
+            self.path,
+        )
+        .map_err(AppendError::Line)?;
+        let Some(q) = q else {
+            return Ok(());
+        };
+        if !self.queue.push(q) {
+            return Err(AppendError::Full);
+        }
+        if let Some(dst) = self.last.get_mut(..n) {
+            dst.copy_from_slice(targets);
+        }
+        // The segment running now leaves at the new plan's speed.
+        if self.state == CoordState::Running {
+            self.aim();
+        }
+        Ok(())
+    }
+
+    /// Waypoints that can still be queued (0 when no move runs).
+    pub fn queue_free(&self) -> usize {
+        if matches!(self.state, CoordState::Starting | CoordState::Running) {
+            self.queue.free()
+        } else {
+            0
+        }
+    }
+
+    /// Waypoints queued behind the segment running.
+    pub fn queued(&self) -> usize {
+        self.queue.len()
+    }
+
+    /// Waypoints the path has passed (without stopping on them).
+    pub fn passed(&self) -> u32 {
+        self.passed
+    }
+
+    /// The queue (the look-ahead's speeds).
+    pub fn queue(&self) -> &PathQueue {
+        &self.queue
+    }
+
+    /// The segment running ends at the speed the look-ahead plans for its
+    /// end ([`Line::aim`]).
+    fn aim(&mut self) {
+        let exit = self.queue.exit_speed();
+        if let Some(line) = self.line.as_mut() {
+            line.aim(exit);
+        }
+    }
+
+    /// After the tick: a path that reached its segment's end goes on to
+    /// the next queued one (its members retargeted to the new waypoint; a
+    /// stop brakes on along the path with each segment's deceleration).
+    fn next_segments(&mut self, axes: &mut [Axis]) {
+        // A tick passes at most one junction when the plan holds; the
+        // bound keeps a tick's work bounded whatever happens.
+        for _ in 0..PATH_QUEUE_STEPS {
+            let at_end = self.line.as_ref().is_some_and(|l| l.at_end());
+            if !at_end {
+                return;
+            }
+            let Some(q) = self.queue.pop() else {
+                return;
+            };
+            let exit = self.queue.exit_speed();
+            let stopping = self.state == CoordState::Stopping;
+            let Some(line) = self.line.as_mut() else {
+                return;
+            };
+            line.advance(&q);
+            line.path.remember_limits(q.limits, q.internal);
+            if stopping {
+                // Brake on with this segment's deceleration: its stop
+                // point again (a lower deceleration may take it further).
+                line.path.run_at(0);
+                line.path.set_limits(q.limits);
+                line.path.soft_stop();
+            } else {
+                line.aim_at(exit, q.dec);
+                line.path.set_limits(q.limits);
+            }
+            self.passed = self.passed.saturating_add(1);
+            for (i, k) in self.members_in(self.moving) {
+                let target = self.line.as_ref().and_then(|l| l.target(i));
+                if let (Some(a), Some(t)) = (axes.get_mut(k), target) {
+                    a.retarget_lead(t);
+                }
+            }
+        }
     }
 
     /// Stop along the line (the group's stop): the shared profile brakes
@@ -278,6 +470,7 @@ impl CoordRun {
         match self.state {
             CoordState::Starting => {
                 // Nothing has moved: every member holds where it is.
+                self.queue.clear();
                 self.abort = Some((by.unwrap_or(u8::MAX), AbortReason::Stopped));
                 self.hold_all(axes);
                 self.release_resting(axes);
@@ -407,18 +600,34 @@ impl CoordRun {
                 return;
             }
             self.state = CoordState::Running;
+            if !self.queue.is_empty() {
+                self.aim();
+            }
         }
         let Some(line) = self.line.as_mut() else {
             return;
         };
         line.tick();
         self.ticks = self.ticks.saturating_add(1);
+        if !self.queue.is_empty() {
+            self.next_segments(axes);
+        }
+        let Some(line) = self.line.as_ref() else {
+            return;
+        };
         let done = line.is_done();
-        if done && self.state == CoordState::Stopping {
+        let on_last = self.queue.is_empty() && line.at_end();
+        if done && self.state == CoordState::Stopping && !on_last {
+            self.queue.clear();
             self.hold_all(axes);
             self.release_resting(axes);
             self.state = CoordState::Settling;
             return;
+        }
+        if done {
+            // On the last waypoint (a stop whose braking point was exactly
+            // there arrived too).
+            self.abort = None;
         }
         self.lead_all(axes);
         if done {
@@ -451,6 +660,7 @@ impl CoordRun {
 
     /// Member `k` left the line: every other member stops at once.
     fn halt(&mut self, axes: &mut [Axis], k: usize) {
+        self.queue.clear();
         let reason = match axes.get(k).and_then(|a| a.fault()) {
             Some(f) => AbortReason::Fault(f),
             None => AbortReason::MemberStopped,
@@ -557,6 +767,54 @@ impl Line {
         let m = (mul_wide(v.unsigned_abs(), r.unsigned_abs()) >> 62) as i64;
         let vel = if (v < 0) != (r < 0) { -m } else { m };
         Some((pos, vel))
+    }
+
+    /// Run this segment's path to its end and leave it at no more than
+    /// `exit` (2⁻³² steps/tick): through the end as to a stop the braking
+    /// distance from `exit` beyond it, at deceleration `dec` (2⁻³²
+    /// steps/tick², the one the profile brakes with), so the tick that
+    /// crosses the end is at most at `exit` ([`Profile::move_through`]).
+    /// To a stop on the end for `exit` 0.
+    pub fn aim_at(&mut self, exit: i64, dec: i64) {
+        let beyond = braking_distance(exit, dec);
+        self.path.move_through(self.length, beyond);
+    }
+
+    /// [`Line::aim_at`] at the deceleration in use.
+    pub fn aim(&mut self, exit: i64) {
+        let (_, _, dec) = self.path.internal_limits();
+        self.aim_at(exit, dec);
+    }
+
+    /// The path has reached (or passed) this segment's end.
+    pub fn at_end(&self) -> bool {
+        self.path.position_fine() >= i128::from(self.length) << POS_FRAC
+    }
+
+    /// Go on to segment `q` from this segment's end (the next waypoint is
+    /// this one's target): the path's parameter carries what it ran beyond
+    /// the end into `q`, its velocity unchanged (the same path speed on
+    /// both sides, [`crate::motion::coord::path_junction`]). The profile's
+    /// target and limits are the caller's to set next.
+    pub fn advance(&mut self, q: &Queued) {
+        let end = i128::from(self.length) << POS_FRAC;
+        for k in 0..self.n.min(MAX_AXES) {
+            if let (Some(a), Some(d), Some(o), Some(r)) = (
+                self.start.get_mut(k),
+                self.delta.get_mut(k),
+                self.offset.get_mut(k),
+                self.ratio.get_mut(k),
+            ) {
+                *a = a.saturating_add(*d);
+                *d = q.delta.get(k).copied().unwrap_or(0);
+                *o = 0;
+                *r = q.ratio.get(k).copied().unwrap_or(0);
+            }
+        }
+        self.inv = q.inv;
+        self.shift = q.shift;
+        self.length = q.length;
+        self.path.shift_fine(end.wrapping_neg());
     }
 
     /// Decelerate along the line with the path's deceleration to a stop on

@@ -4,7 +4,7 @@
 use heapless::Vec;
 
 use super::axis::Axis;
-use super::coordinated::{CoordRun, StartError};
+use super::coordinated::{AppendError, CoordRun, StartError};
 use super::profile::Limits;
 use crate::powerstep::chain::{
     Batch, Chain, ChainBus, ChainError, Frames, Plan, Replies, ScheduleError, MAX_DEVICES,
@@ -140,6 +140,11 @@ impl AxisGroup {
         path: Limits,
     ) -> Result<(), StartError> {
         self.coord.start(&mut self.axes, members, targets, path)
+    }
+
+    /// Queue a waypoint behind the coordinated move ([`CoordRun::append`]).
+    pub fn coord_append(&mut self, targets: &[i64]) -> Result<(), AppendError> {
+        self.coord.append(&mut self.axes, targets)
     }
 
     /// Stop the coordinated move along its line ([`CoordRun::stop`]).

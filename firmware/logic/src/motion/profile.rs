@@ -127,6 +127,10 @@ pub struct Profile {
     /// outside ([`Profile::lead`]: a coordinated move's line), taken by
     /// that tick instead of the profile's own step.
     led: Option<(i128, i64)>,
+    /// In position mode, how far (2⁻³³ steps, ≥ 0) beyond the target the
+    /// profile brakes to rest ([`Profile::move_through`]): 0 but for a
+    /// path's segment, which it leaves at a speed.
+    beyond: i128,
 }
 
 /// Steps/s → 2⁻³² steps/tick, rounded down (never above the limit).
@@ -251,6 +255,7 @@ impl Profile {
             prev_div: Divisor::new(1),
             coast: 0,
             led: None,
+            beyond: 0,
         };
         p.set_limits(limits);
         p
@@ -326,6 +331,24 @@ impl Profile {
         }
     }
 
+    /// Remember `limits`' internal units `v` (vmax, acc, dec, as
+    /// [`Profile::set_limits`] works them out) for a later `set_limits`:
+    /// worked out beforehand where a tick has no time for the divisions (a
+    /// path's next segment).
+    pub fn remember_limits(&mut self, limits: Limits, v: (i64, i64, i64)) {
+        let [last, _] = self.conv;
+        self.conv = [Some((limits, v)), last];
+    }
+
+    /// `limits` in internal units, as [`Profile::set_limits`] uses them.
+    pub fn internal_of(tick_us: u32, limits: Limits) -> (i64, i64, i64) {
+        (
+            speed_to_internal(limits.max_speed.max(1), tick_us.max(1)).max(1),
+            acc_to_internal(limits.acc.max(1), tick_us.max(1)),
+            acc_to_internal(limits.dec.max(1), tick_us.max(1)),
+        )
+    }
+
     /// `limits` in internal units: (vmax, acc, dec), remembered for the last
     /// two limits (module doc of [`Profile`]'s fields).
     fn internal(&mut self, limits: Limits) -> Internal {
@@ -335,11 +358,7 @@ impl Profile {
                 return v;
             }
         }
-        let v = (
-            speed_to_internal(limits.max_speed.max(1), self.tick_us).max(1),
-            acc_to_internal(limits.acc.max(1), self.tick_us),
-            acc_to_internal(limits.dec.max(1), self.tick_us),
-        );
+        let v = Profile::internal_of(self.tick_us, limits);
         self.conv = [Some((limits, v)), last];
         v
     }
@@ -351,7 +370,7 @@ impl Profile {
         let Mode::Position(target) = self.mode else {
             return lower;
         };
-        let rem = (i128::from(target) << POS_FRAC) - self.pos;
+        let rem = (i128::from(target) << POS_FRAC) + self.beyond - self.pos;
         let (r, v) = if self.vel > 0 {
             (rem, self.vel)
         } else {
@@ -388,6 +407,20 @@ impl Profile {
         self.coast = 0;
         self.led = None;
         self.mode = Mode::Position(target);
+        self.beyond = 0;
+    }
+
+    /// Move toward `target` steps and pass it at no more than the speed
+    /// whose braking distance is `beyond` (2⁻³³ steps, at the deceleration
+    /// in use; ≥ 0): the profile runs as to a stop `beyond` past the
+    /// target, so in the tick that reaches the target its speed is at most
+    /// that one (a path's segment end, [`crate::motion::coordinated`]).
+    /// Forward only (a target ahead of the position).
+    pub fn move_through(&mut self, target: i64, beyond: i128) {
+        self.coast = 0;
+        self.led = None;
+        self.mode = Mode::Position(target);
+        self.beyond = beyond.max(0);
     }
 
     /// Run at a signed speed in steps/s (velocity mode), clamped to max speed
@@ -397,6 +430,7 @@ impl Profile {
         self.coast = 0;
         self.led = None;
         self.mode = Mode::Velocity(if steps_per_s < 0 { -v } else { v });
+        self.beyond = 0;
     }
 
     /// Stop at once (no ramp) on the nearest whole step.
@@ -410,6 +444,7 @@ impl Profile {
     pub fn soft_stop(&mut self) {
         self.coast = 0;
         self.led = None;
+        self.beyond = 0;
         if self.vel == 0 {
             self.mode = Mode::Position(self.position_toward(self.pos, 0));
             return;
@@ -437,6 +472,7 @@ impl Profile {
         self.vel = 0;
         self.pos = fine;
         self.mode = Mode::Hold;
+        self.beyond = 0;
         self.set_dec(self.dec_limit);
     }
 
@@ -449,6 +485,15 @@ impl Profile {
         self.vel = 0;
         self.pos = fine;
         self.set_dec(self.dec_limit);
+    }
+
+    /// Move the position by `delta` (2⁻³³ steps) and keep the velocity: a
+    /// path's parameter carried into its next segment (its own origin).
+    /// The mode is the caller's to set next.
+    pub fn shift_fine(&mut self, delta: i128) {
+        self.coast = 0;
+        self.led = None;
+        self.pos += delta;
     }
 
     /// Position, rounded to the nearest step (halves away from zero).
@@ -604,7 +649,7 @@ impl Profile {
     }
 
     fn position_step(&mut self, target: i64) -> i64 {
-        let goal = i128::from(target) << POS_FRAC;
+        let goal = (i128::from(target) << POS_FRAC) + self.beyond;
         let rem = goal - self.pos;
         // Mirror so that the target lies ahead (r ≥ 0).
         let (r, v, sign) = if rem > 0 || (rem == 0 && self.vel <= 0) {

@@ -65,6 +65,16 @@ impl Axis {
         });
     }
 
+    /// The group's path went on to its next waypoint: the member's target
+    /// on the line is now `target` (logical steps; where it lands if the
+    /// path ends there).
+    pub fn retarget_lead(&mut self, target: i64) {
+        if let Some(m) = self.lead.as_mut().filter(|m| !m.resting) {
+            m.target = target;
+            self.profile.move_to(target);
+        }
+    }
+
     /// A resting member's tick: its soft stop stays the group's.
     pub fn keep_resting(&mut self) {
         if let Some(m) = self.lead.as_mut() {
@@ -83,14 +93,21 @@ impl Axis {
 
     /// Still on the group's line: led, moving to the line's target (a
     /// resting member: at rest), not stopped, reset or faulted since it
-    /// joined.
+    /// joined. A member led to rest on its target (in a path, a segment in
+    /// which it has no distance to go) lands there as a move does, and is
+    /// still following: the next lead that moves it streams again.
     pub fn is_following(&self) -> bool {
         match self.lead {
             None => false,
             Some(m) if m.resting => self.is_at_rest(),
             Some(m) => {
-                self.profile.mode() == Mode::Position(m.target)
-                    && matches!(self.state, AxisState::Idle | AxisState::Streaming)
+                let landing = match self.state {
+                    AxisState::Idle | AxisState::Streaming | AxisState::Landing => true,
+                    // The end-of-move soft stop before the landing's GoTo.
+                    AxisState::Stopping => self.stop.after == AfterStop::Land,
+                    _ => false,
+                };
+                self.profile.mode() == Mode::Position(m.target) && landing
             }
         }
     }

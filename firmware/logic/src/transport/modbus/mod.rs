@@ -51,8 +51,10 @@
 //!   Ids 248..=255, and ids of no axis, are never answered.
 //! * Broadcast (id 0): a well-formed write (FC 0x06 / 0x10 to a writable
 //!   command) is executed on every axis — 0x04 Set address only on the axis
-//!   that answers BYTE0 now — and nothing is ever sent back, not even an
-//!   exception. Broadcast reads and malformed broadcasts do nothing.
+//!   that answers BYTE0 now, an extension write to a bridge-wide block
+//!   (`crate::ext_space::is_bridge_wide`) once — and nothing is ever sent
+//!   back, not even an exception. Broadcast reads and malformed broadcasts
+//!   do nothing.
 //! * Exceptions, checked in the Modbus spec's order (response function code
 //!   = function | 0x80, the product rules (`docs/PRODUCT.md`)): 01 the function is not 0x03/0x06/0x10;
 //!   03 quantity outside 1..=125 (0x03) / 1..=123 (0x10), byte count ≠

@@ -306,7 +306,13 @@ pub(super) fn broadcast(pdu: &[u8], stats: &mut Stats, target: &mut impl ModbusT
     if request.address_is_extension() {
         let mut regs = [0u16; WRITE_QUANTITY_MAX as usize];
         let n = registers_of(data, &mut regs);
-        for axis in 0..target.axes() {
+        // A bridge-wide block once (a second start would be refused busy).
+        let axes = if crate::ext_space::is_bridge_wide(address) {
+            target.axes().min(1)
+        } else {
+            target.axes()
+        };
+        for axis in 0..axes {
             let _ = target.ext_write(axis, address, regs.get(..n).unwrap_or(&[]));
         }
         return;
