@@ -768,11 +768,10 @@ fn feed(rig: &mut Rig, waypoints: &[Vec<i64>]) -> usize {
     fed
 }
 
-/// Waypoints behind a random group's move: 3–24 of them; a member with no
-/// distance to go in the move keeps its place (it rests through the
-/// path), the others go on by nothing, a few steps, or far (up to half a
-/// second at their max speed), so segments of every length and zero
-/// components come.
+/// Waypoints behind a random group's move: 3–24 of them; every member
+/// (also one with no distance to go in the move) goes on by nothing, a few
+/// steps, or far (up to half a second at its max speed), so segments of
+/// every length and zero components come.
 fn random_waypoints(rng: &mut Rng, members: &[Member]) -> Vec<Vec<i64>> {
     let rows = 3 + rng.below(22) as usize;
     let mut at: Vec<i64> = members.iter().map(|m| m.target).collect();
@@ -783,9 +782,6 @@ fn random_waypoints(rng: &mut Rng, members: &[Member]) -> Vec<Vec<i64>> {
     (0..rows)
         .map(|_| {
             for (p, m) in at.iter_mut().zip(members) {
-                if m.target == 0 {
-                    continue;
-                }
                 *p += match rng.below(4) {
                     0 => 0,
                     1 => rng.range(-5, 5),
@@ -1001,7 +997,18 @@ fn random_paths_stay_on_their_polyline_keep_every_axis_within_its_limits_and_sto
             continue;
         }
         let mut rng = Rng(0x9A7B_0000 + seed);
-        let members = random_group(&mut rng);
+        let mut members = random_group(&mut rng);
+        // Acceleration and deceleration within 4:1 of each other: with a
+        // deceleration far below the acceleration (20:1 and more), the
+        // read-back correction's dither (±2 microsteps over 8 ms) at a
+        // slow or resting axis takes the chip's slow DEC tens of ms to
+        // undo, and an axis that reverses there lags and is then driven
+        // above its acceleration to catch up: an output-stage limit for
+        // single moves as much as for paths (README, known limits).
+        for m in &mut members {
+            m.limits.dec = m.limits.dec.max(m.limits.acc / 4);
+            m.limits.acc = m.limits.acc.max(m.limits.dec / 4);
+        }
         let waypoints = random_waypoints(&mut rng, &members);
         let what = format!("seed {seed} {members:?} {waypoints:?}");
         if std::env::var("PATH_TRACE").is_ok() {

@@ -327,15 +327,16 @@ fn a_waypoint_is_refused_with_its_reason_when_it_cannot_be_queued() {
 }
 
 #[test]
-fn a_waypoint_that_moves_a_member_resting_through_the_move_is_refused() {
+fn a_member_with_no_distance_to_go_at_the_start_moves_in_a_later_segment() {
     let mut b = bench();
     describe(&mut b, 0b111, [3000, 3000, 0]);
     b.write(1, CMD, 1).unwrap();
-    assert_eq!(waypoint(&mut b, [3000, 3500, 10]), Err(SERVER_FAILURE));
-    assert_eq!(b.read(1, REFUSAL, 1).unwrap(), [0x0207]);
-    assert_eq!(waypoint(&mut b, [3000, 3500, 0]), Ok(()));
+    assert_eq!(waypoint(&mut b, [3000, 3500, 400]), Ok(()));
     wait_for(&mut b, DONE, 10_000);
-    assert_eq!((b.position(2), b.position(3)), (3500, 0));
+    assert_eq!(
+        (b.position(1), b.position(2), b.position(3)),
+        (3000, 3500, 400)
+    );
 }
 
 #[test]

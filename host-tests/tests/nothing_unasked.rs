@@ -1128,13 +1128,13 @@ impl World {
         self.counts.groups += 1;
         self.counts.group_members += members.len() as u64;
         // Half of them go on through a path of 1–8 waypoints (one write
-        // each; a member with no distance to go rests through it). The
-        // members end on the last waypoint accepted.
+        // each; any member may move in them). The members end on the last
+        // waypoint accepted.
         if rng.below(2) == 0 {
             let mut at = targets;
             for _ in 0..1 + rng.below(8) {
                 for &k in &members {
-                    if targets[k] != self.position(k) && rng.below(3) != 0 {
+                    if rng.below(3) != 0 {
                         let per_full = 1i64 << self.ax[k].mode;
                         let span = per_full * rng.range(0, 200);
                         at[k] = (at[k] + rng.range(-span, span)).clamp(-(1 << 24), 1 << 24);

@@ -225,8 +225,7 @@ pub mod coord {
     /// under way, 2 a member past the chain or no member, 3 a member not
     /// ready (not at rest, asleep, faulted, homing, or not in position
     /// mode; chain index · 256 + 3), 4 a component longer than 2³² steps,
-    /// 5 the queue is full, 6 no move starts or runs, 7 a waypoint moves a
-    /// member that rests through the move (chain index · 256 + 7).
+    /// 5 the queue is full, 6 no move starts or runs.
     pub const REFUSAL: u8 = 0x03;
     /// u32 each: the path's max speed, acceleration, deceleration, in steps
     /// of the member that travels farthest (per s, per s²); 0 = none (the

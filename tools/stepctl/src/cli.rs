@@ -146,6 +146,42 @@ pub struct Limits {
     pub dec: Option<u16>,
 }
 
+/// A coordinated move's path limits, in steps of the axis that travels
+/// farthest (not stored: the axes' own limits stay as they are).
+#[derive(Args, Debug, PartialEq, Clone, Default)]
+pub struct PathLimits {
+    /// Path max speed, steps/s (the axes' own max speeds cap it).
+    #[arg(long)]
+    pub speed: Option<u32>,
+    /// Path acceleration, steps/s².
+    #[arg(long)]
+    pub acc: Option<u32>,
+    /// Path deceleration, steps/s².
+    #[arg(long)]
+    pub dec: Option<u32>,
+}
+
+/// `move AXIS=POS …` is the coordinated `group-move`: the arguments with
+/// `move` followed by an `AXIS=POS` rewritten so (`move AXIS POS` stays the
+/// single-axis move).
+pub fn group_move_args(args: Vec<String>) -> Vec<String> {
+    let at = args.iter().position(|a| a == "move");
+    match at {
+        Some(i)
+            if args
+                .get(i.saturating_add(1))
+                .is_some_and(|a| a.contains('=')) =>
+        {
+            let mut out = args;
+            if let Some(cmd) = out.get_mut(i) {
+                *cmd = "group-move".into();
+            }
+            out
+        }
+        _ => args,
+    }
+}
+
 #[derive(Subcommand, Debug, PartialEq)]
 pub enum Command {
     /// List the ids that answer on the bus (or the USB devices with --usb).
@@ -174,6 +210,41 @@ pub enum Command {
         limits: Limits,
         #[command(flatten)]
         wait: Wait,
+    },
+    /// Several axes in one coordinated move (`stepctl move 1=3000 2=-500`:
+    /// `move` with AXIS=POS arguments comes here): one straight line, one
+    /// start, one arrival (extension 0x08nn); waits.
+    #[command(name = "group-move", hide = true)]
+    GroupMove {
+        /// AXIS=POS for each axis, e.g. 1=3000 2=-500.
+        #[arg(required = true, allow_negative_numbers = true)]
+        targets: Vec<String>,
+        #[command(flatten)]
+        limits: PathLimits,
+        /// Give up waiting after this many seconds (exit 5).
+        #[arg(long, default_value_t = 60.0)]
+        timeout: f64,
+        /// Return once the move is started instead of waiting.
+        #[arg(long)]
+        no_wait: bool,
+    },
+    /// Run a path of waypoints from a CSV file: a header row naming the
+    /// axes (e.g. `1,2,3`), then one waypoint per row in their steps. A
+    /// coordinated move to the first row, then the rows streamed into the
+    /// box's path queue as it drains (extension 0x08nn); waits.
+    Path {
+        file: PathBuf,
+        #[command(flatten)]
+        limits: PathLimits,
+        /// Give up waiting after this many seconds (exit 5).
+        #[arg(long, default_value_t = 600.0)]
+        timeout: f64,
+        /// Write every axis's position at each poll as CSV (t_s,axis…).
+        #[arg(long)]
+        record: Option<PathBuf>,
+        /// Draw the first two axes against each other (XY) into this SVG.
+        #[arg(long)]
+        plot: Option<PathBuf>,
     },
     /// Move AXIS by STEPS from where it is.
     Jog {
@@ -255,6 +326,10 @@ pub enum Command {
         /// Start a move to this position when recording starts.
         #[arg(long = "move", allow_negative_numbers = true, value_name = "POS")]
         move_to: Option<i32>,
+        /// Also record this axis and draw the two against each other (XY:
+        /// AXIS across, this one up) instead of against time.
+        #[arg(long, value_parser = axis, value_name = "AXIS")]
+        xy: Option<u8>,
     },
     /// Bring-up checks: chain, each chip's STATUS and registers against what
     /// the bridge wrote, supply, temperature, settings store, reset cause,
@@ -432,6 +507,25 @@ mod tests {
             }
             other => panic!("{other:?}"),
         }
+    }
+
+    #[test]
+    fn move_with_axis_equals_position_is_the_coordinated_move() {
+        let args = |v: &[&str]| v.iter().map(|s| s.to_string()).collect::<Vec<_>>();
+        let a = group_move_args(args(&[
+            "stepctl", "--tcp", "h:1", "move", "1=3000", "2=-500",
+        ]));
+        assert_eq!(a[3], "group-move");
+        let c = Cli::try_parse_from(a).unwrap();
+        match c.command {
+            Command::GroupMove { targets, .. } => assert_eq!(targets, ["1=3000", "2=-500"]),
+            other => panic!("{other:?}"),
+        }
+        // The single-axis move stays as it is.
+        let a = group_move_args(args(&["stepctl", "move", "1", "-3000"]));
+        assert_eq!(a[1], "move");
+        let c = Cli::try_parse_from(args(&["stepctl", "path", "p.csv", "--speed", "70000"]));
+        assert!(matches!(c.unwrap().command, Command::Path { .. }));
     }
 
     #[test]

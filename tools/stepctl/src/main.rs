@@ -54,7 +54,7 @@ fn execute(cli: &Cli) -> Result<app::Output> {
 }
 
 fn main() {
-    let cli = match Cli::try_parse() {
+    let cli = match Cli::try_parse_from(stepctl::cli::group_move_args(std::env::args().collect())) {
         Ok(c) => c,
         Err(e) => {
             // Help and version are not errors; every usage error exits 1.

@@ -1,5 +1,5 @@
-//! `stepctl record --plot`: position and speed vs time as SVG (plotters,
-//! SVG backend only).
+//! `stepctl record --plot`: position and speed vs time as SVG, and `stepctl
+//! path --plot`: two axes against each other (plotters, SVG backend only).
 
 use std::path::Path;
 
@@ -76,6 +76,38 @@ pub fn svg(path: &Path, title: &str, samples: &[Sample]) -> Result<()> {
     Ok(())
 }
 
+/// Two axes against each other (`stepctl path --plot`): the recorded
+/// points `xy` (steps of the first axis, steps of the second), joined in
+/// the order taken.
+pub fn xy_svg(path: &Path, title: &str, names: &(String, String), xy: &[(f64, f64)]) -> Result<()> {
+    let fail =
+        |e: &dyn std::fmt::Display| Error::Usage(format!("cannot draw {}: {e}", path.display()));
+    let root = SVGBackend::new(path, (760, 760)).into_drawing_area();
+    root.fill(&WHITE).map_err(|e| fail(&e))?;
+    let root = root
+        .titled(title, ("sans-serif", 20))
+        .map_err(|e| fail(&e))?;
+    let (x0, x1) = span(xy.iter().map(|p| p.0));
+    let (y0, y1) = span(xy.iter().map(|p| p.1));
+    let mut chart = ChartBuilder::on(&root)
+        .margin(10)
+        .x_label_area_size(35)
+        .y_label_area_size(70)
+        .build_cartesian_2d(x0..x1, y0..y1)
+        .map_err(|e| fail(&e))?;
+    chart
+        .configure_mesh()
+        .x_desc(format!("{}, steps", names.0))
+        .y_desc(format!("{}, steps", names.1))
+        .draw()
+        .map_err(|e| fail(&e))?;
+    chart
+        .draw_series(LineSeries::new(xy.iter().copied(), BLUE.stroke_width(2)))
+        .map_err(|e| fail(&e))?;
+    root.present().map_err(|e| fail(&e))?;
+    Ok(())
+}
+
 pub fn csv(samples: &[Sample]) -> String {
     let mut s = String::from("t_s,position_steps,speed_steps_per_s\n");
     for x in samples {
@@ -105,6 +137,22 @@ mod tests {
         assert!(text.starts_with("<svg"));
         assert!(text.contains("position, steps") && text.contains("speed, steps/s"));
         assert!(text.matches("<polyline").count() >= 2);
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    #[test]
+    fn a_path_draws_its_two_axes_against_each_other() {
+        let dir = std::env::temp_dir().join(format!("stepctl-xy-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("xy.svg");
+        let xy: Vec<(f64, f64)> = (0..40)
+            .map(|i| (f64::from(i).cos() * 100.0, f64::from(i).sin() * 100.0))
+            .collect();
+        xy_svg(&path, "path", &("axis 1".into(), "axis 2".into()), &xy).unwrap();
+        let text = std::fs::read_to_string(&path).unwrap();
+        assert!(text.starts_with("<svg"));
+        assert!(text.contains("axis 1, steps") && text.contains("axis 2, steps"));
+        assert!(text.contains("<polyline"));
         std::fs::remove_dir_all(&dir).unwrap();
     }
 

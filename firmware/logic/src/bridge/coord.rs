@@ -57,7 +57,6 @@ fn append_code(e: AppendError) -> u16 {
     match e {
         AppendError::Full => 5,
         AppendError::NotRunning => 6,
-        AppendError::Resting(k) => u16::from(k) << 8 | 7,
         AppendError::Line(_) => 4,
     }
 }

@@ -22,10 +22,11 @@
 //!   a move of its own, Set zero, a step-mode change) — stops every other
 //!   member at once too (HardStop: as close to the line as the chips
 //!   allow), and the group reports which member and why. Members with no
-//!   distance to go rest through the move, and the same holds for them:
-//!   their soft stop brakes the group, anything taking them out of rest
-//!   stops it at once. After any of
-//!   them every member rests until a new motion command.
+//!   distance to go are led where they are (the line waits only for the
+//!   others to stream), and the same holds for them: their soft stop
+//!   brakes the group, anything taking them off the line stops it at
+//!   once; in a path they may move in a later segment. After any of them
+//!   every member rests until a new motion command.
 //! * **Paths.** Waypoints queued behind the move ([`CoordRun::append`])
 //!   run on from its target without stopping where the look-ahead allows
 //!   ([`crate::motion::coord::PathQueue`]): each segment's profile runs
@@ -106,9 +107,6 @@ pub enum AppendError {
     NotRunning,
     /// The queue holds [`crate::motion::coord::PATH_QUEUE`] waypoints.
     Full,
-    /// This member (chain index) rests through the move (it had no
-    /// distance to go at the start): it cannot join the path later.
-    Resting(u8),
     /// The segment itself (a target per member, no component too long).
     Line(CoordError),
 }
@@ -121,11 +119,12 @@ pub struct CoordRun {
     /// Chain indices of the members, in the line's order.
     members: [u8; MAX_AXES],
     n: usize,
-    /// Bit i: member i moves (a zero component only rests).
+    /// Bit i: member i follows the line (every member, unless nothing
+    /// moves).
     moving: u8,
-    /// Bit i: member i rests through the move (no distance to go; a stop
-    /// of it, or anything taking it out of rest, is the group's).
-    resting: u8,
+    /// Bit i: member i has distance to go in the first segment (the line
+    /// waits until these stream; the others are led where they are).
+    first: u8,
     abort: Option<(u8, AbortReason)>,
     /// Ticks the line has run.
     ticks: u32,
@@ -154,7 +153,7 @@ impl CoordRun {
             members: [0; MAX_AXES],
             n: 0,
             moving: 0,
-            resting: 0,
+            first: 0,
             abort: None,
             ticks: 0,
             queue: PathQueue::new(),
@@ -271,30 +270,21 @@ impl CoordRun {
         );
         let line = Line::with_offsets(tick_us, starts, offsets, targets, limits, path)
             .map_err(StartError::Line)?;
-        let mut moving = 0u8;
-        for (i, ((&k, &target), (&s, &o))) in members
-            .iter()
-            .zip(targets)
-            .zip(starts.iter().zip(offsets))
-            .enumerate()
-        {
+        // Members with distance to go; when any has, every member follows
+        // the line (one with none is led where it is, and may move in a
+        // later segment of a path); when none has, the move is done.
+        let mut first = 0u8;
+        for (i, ((&target, &s), &o)) in targets.iter().zip(starts).zip(offsets).enumerate() {
             if target != s || o != 0 {
+                first |= 1 << i;
+            }
+        }
+        let mut moving = 0u8;
+        if first != 0 {
+            for (i, (&k, &target)) in members.iter().zip(targets).enumerate() {
                 moving |= 1 << i;
                 if let Some(axis) = axes.get_mut(k) {
                     axis.follow(target);
-                }
-            }
-        }
-        // Members with no distance to go rest through the move (not when
-        // nothing moves: that move is done at once).
-        let mut resting = 0u8;
-        if moving != 0 {
-            for (i, &k) in members.iter().enumerate() {
-                if moving & (1 << i) == 0 {
-                    resting |= 1 << i;
-                    if let Some(axis) = axes.get_mut(k) {
-                        axis.join_resting();
-                    }
                 }
             }
         }
@@ -312,7 +302,7 @@ impl CoordRun {
             members: ids,
             n,
             moving,
-            resting,
+            first,
             abort: None,
             ticks: 0,
             queue: PathQueue::new(),
@@ -345,9 +335,6 @@ impl CoordRun {
             let from = self.last.get(i).copied().unwrap_or(0);
             let d =
                 i64::try_from(i128::from(t).saturating_sub(i128::from(from))).unwrap_or(i64::MAX);
-            if d != 0 && self.resting & (1 << i) != 0 {
-                return Err(AppendError::Resting(k));
-            }
             let axis = axes.get_mut(usize::from(k));
             if let (Some(dd), Some(l), Some(a)) = (delta.get_mut(i), limits.get_mut(i), axis) {
                 *dd = d;
@@ -473,7 +460,6 @@ impl CoordRun {
                 self.queue.clear();
                 self.abort = Some((by.unwrap_or(u8::MAX), AbortReason::Stopped));
                 self.hold_all(axes);
-                self.release_resting(axes);
                 self.state = CoordState::Settling;
             }
             CoordState::Running => {
@@ -515,15 +501,6 @@ impl CoordRun {
             .map(|(i, &k)| (i, usize::from(k)))
     }
 
-    /// The resting members leave the group (the move is over).
-    fn release_resting(&self, axes: &mut [Axis]) {
-        for (_, k) in self.members_in(self.resting) {
-            if let Some(a) = axes.get_mut(k) {
-                a.unlead();
-            }
-        }
-    }
-
     /// One control tick, before the axes plan: lead every member to its
     /// point of the line (module doc).
     pub fn step(&mut self, axes: &mut [Axis]) {
@@ -563,7 +540,7 @@ impl CoordRun {
     fn lead_step(&mut self, axes: &mut [Axis]) {
         // A member that left the line (or left its rest) stops the others
         // at once.
-        let joined = self.moving | self.resting;
+        let joined = self.moving;
         let left = self
             .members_in(joined)
             .find(|&(_, k)| axes.get(k).is_none_or(|a| !a.is_following()));
@@ -579,11 +556,6 @@ impl CoordRun {
                 }
             }
         }
-        for (_, k) in self.members_in(self.resting) {
-            if let Some(a) = axes.get_mut(k) {
-                a.keep_resting();
-            }
-        }
         if asked.is_some() {
             self.stop_for(axes, asked);
             if self.state == CoordState::Settling {
@@ -592,7 +564,7 @@ impl CoordRun {
         }
         if self.state == CoordState::Starting {
             let all = self
-                .moving_members()
+                .members_in(self.first)
                 .all(|(_, k)| axes.get(k).is_some_and(|a| a.is_streaming()));
             if !all {
                 // Held where they are until every member streams.
@@ -620,7 +592,6 @@ impl CoordRun {
         if done && self.state == CoordState::Stopping && !on_last {
             self.queue.clear();
             self.hold_all(axes);
-            self.release_resting(axes);
             self.state = CoordState::Settling;
             return;
         }
@@ -637,7 +608,6 @@ impl CoordRun {
                     a.unlead();
                 }
             }
-            self.release_resting(axes);
             self.state = CoordState::Settling;
         }
     }
@@ -676,7 +646,6 @@ impl CoordRun {
                 }
             }
         }
-        self.release_resting(axes);
         self.state = CoordState::Settling;
     }
 

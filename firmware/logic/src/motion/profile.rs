@@ -129,8 +129,9 @@ pub struct Profile {
     led: Option<(i128, i64)>,
     /// In position mode, how far (2⁻³³ steps, ≥ 0) beyond the target the
     /// profile brakes to rest ([`Profile::move_through`]): 0 but for a
-    /// path's segment, which it leaves at a speed.
-    beyond: i128,
+    /// path's segment, which it leaves at a speed. (64 bits: a braking
+    /// distance beyond 2³⁰ steps is cut to it, which only brakes sooner.)
+    beyond: i64,
 }
 
 /// Steps/s → 2⁻³² steps/tick, rounded down (never above the limit).
@@ -370,7 +371,7 @@ impl Profile {
         let Mode::Position(target) = self.mode else {
             return lower;
         };
-        let rem = (i128::from(target) << POS_FRAC) + self.beyond - self.pos;
+        let rem = (i128::from(target) << POS_FRAC) + i128::from(self.beyond) - self.pos;
         let (r, v) = if self.vel > 0 {
             (rem, self.vel)
         } else {
@@ -420,7 +421,7 @@ impl Profile {
         self.coast = 0;
         self.led = None;
         self.mode = Mode::Position(target);
-        self.beyond = beyond.max(0);
+        self.beyond = i64::try_from(beyond.max(0)).unwrap_or(i64::MAX);
     }
 
     /// Run at a signed speed in steps/s (velocity mode), clamped to max speed
@@ -649,7 +650,7 @@ impl Profile {
     }
 
     fn position_step(&mut self, target: i64) -> i64 {
-        let goal = (i128::from(target) << POS_FRAC) + self.beyond;
+        let goal = (i128::from(target) << POS_FRAC) + i128::from(self.beyond);
         let rem = goal - self.pos;
         // Mirror so that the target lies ahead (r ≥ 0).
         let (r, v, sign) = if rem > 0 || (rem == 0 && self.vel <= 0) {

@@ -57,6 +57,7 @@ pub(super) fn record(
     plot_to: Option<&std::path::Path>,
     csv_to: Option<&std::path::Path>,
     move_to: Option<i32>,
+    xy: Option<u8>,
 ) -> Result<Output> {
     if !(seconds > 0.0 && seconds <= 3600.0) {
         return Err(Error::Usage(format!("--seconds {seconds}: 0 < s <= 3600")));
@@ -70,6 +71,8 @@ pub(super) fn record(
     let t0 = Instant::now();
     let mut samples = Vec::new();
     let mut faults = 0;
+    // With --xy: (this axis, the other) per sample.
+    let mut pairs = Vec::new();
     while t0.elapsed().as_secs_f64() < seconds {
         let m = ops::motion(ctx.bus, unit)?;
         samples.push(Sample {
@@ -78,6 +81,11 @@ pub(super) fn record(
             speed: m.speed,
         });
         faults |= m.faults;
+        if let Some(other) = xy {
+            let o = ops::motion(ctx.bus, other)?;
+            pairs.push((f64::from(m.position), f64::from(o.position)));
+            faults |= o.faults;
+        }
         std::thread::sleep(Duration::from_millis(5).min(ctx.poll.max(Duration::from_millis(1))));
     }
     if let Some(p) = plot_to {
@@ -86,7 +94,13 @@ pub(super) fn record(
             ctx.bus.name(),
             samples.len()
         );
-        plot::svg(p, &title, &samples)?;
+        match xy {
+            Some(other) => {
+                let names = (format!("axis {unit}"), format!("axis {other}"));
+                plot::xy_svg(p, &title, &names, &pairs)?;
+            }
+            None => plot::svg(p, &title, &samples)?,
+        }
     }
     if let Some(p) = csv_to {
         std::fs::write(p, plot::csv(&samples))

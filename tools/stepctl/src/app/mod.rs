@@ -5,6 +5,7 @@
 
 mod live;
 mod motion;
+pub mod path;
 mod report;
 mod settings_cmd;
 
@@ -109,6 +110,37 @@ pub fn run(ctx: &mut Ctx, cmd: &Command) -> Result<Output> {
             limits,
             wait,
         } => motion::jog(ctx, *axis, *steps, limits, wait),
+        Command::GroupMove {
+            targets,
+            limits,
+            timeout,
+            no_wait,
+        } => path::group_move(
+            ctx,
+            &path::parse_targets(targets)?,
+            path_limits(limits),
+            *timeout,
+            *no_wait,
+        ),
+        Command::Path {
+            file,
+            limits,
+            timeout,
+            record,
+            plot,
+        } => {
+            let text = std::fs::read_to_string(file)
+                .map_err(|e| Error::Usage(format!("cannot read {}: {e}", file.display())))?;
+            let f = path::parse_csv(&text)?;
+            path::run_path(
+                ctx,
+                &f,
+                path_limits(limits),
+                *timeout,
+                record.as_deref(),
+                plot.as_deref(),
+            )
+        }
         Command::Run { axis, speed } => motion::run_at(ctx, *axis, *speed),
         Command::Stop { axes } => motion::stop(ctx, axes),
         Command::Zero { axis } => simple(ctx, *axis, reg::SET_ZERO, 0, "position is now 0"),
@@ -134,6 +166,7 @@ pub fn run(ctx: &mut Ctx, cmd: &Command) -> Result<Output> {
             plot,
             csv,
             move_to,
+            xy,
         } => live::record(
             ctx,
             *axis,
@@ -141,6 +174,7 @@ pub fn run(ctx: &mut Ctx, cmd: &Command) -> Result<Output> {
             plot.as_deref(),
             csv.as_deref(),
             *move_to,
+            *xy,
         ),
         Command::Raw {
             axis,
@@ -162,6 +196,14 @@ pub fn run(ctx: &mut Ctx, cmd: &Command) -> Result<Output> {
             *seconds,
             *tick_tolerance,
         ),
+    }
+}
+
+fn path_limits(l: &crate::cli::PathLimits) -> path::PathLimits {
+    path::PathLimits {
+        speed: l.speed.unwrap_or(0),
+        acc: l.acc.unwrap_or(0),
+        dec: l.dec.unwrap_or(0),
     }
 }
 

@@ -15,8 +15,6 @@ pub(super) struct LeadMark {
     at: u64,
     /// A soft stop asked of this member: the group stops along the line.
     stop_asked: bool,
-    /// A member with no distance to go: it rests through the move.
-    resting: bool,
 }
 
 impl Axis {
@@ -49,19 +47,6 @@ impl Axis {
             target,
             at: self.tick,
             stop_asked: false,
-            resting: false,
-        });
-    }
-
-    /// Join a coordinated move as a member with no distance to go: it
-    /// rests through the move, and a stop of it, or anything that takes it
-    /// out of rest, is the group's ([`Axis::is_following`]).
-    pub fn join_resting(&mut self) {
-        self.lead = Some(LeadMark {
-            target: self.required_position(),
-            at: self.tick,
-            stop_asked: false,
-            resting: true,
         });
     }
 
@@ -69,16 +54,9 @@ impl Axis {
     /// on the line is now `target` (logical steps; where it lands if the
     /// path ends there).
     pub fn retarget_lead(&mut self, target: i64) {
-        if let Some(m) = self.lead.as_mut().filter(|m| !m.resting) {
+        if let Some(m) = self.lead.as_mut() {
             m.target = target;
             self.profile.move_to(target);
-        }
-    }
-
-    /// A resting member's tick: its soft stop stays the group's.
-    pub fn keep_resting(&mut self) {
-        if let Some(m) = self.lead.as_mut() {
-            m.at = self.tick;
         }
     }
 
@@ -91,15 +69,13 @@ impl Axis {
         }
     }
 
-    /// Still on the group's line: led, moving to the line's target (a
-    /// resting member: at rest), not stopped, reset or faulted since it
-    /// joined. A member led to rest on its target (in a path, a segment in
+    /// Still on the group's line: led, moving to the line's target, not
+    /// stopped, reset or faulted since it joined. A member led to rest on its target (in a path, a segment in
     /// which it has no distance to go) lands there as a move does, and is
     /// still following: the next lead that moves it streams again.
     pub fn is_following(&self) -> bool {
         match self.lead {
             None => false,
-            Some(m) if m.resting => self.is_at_rest(),
             Some(m) => {
                 let landing = match self.state {
                     AxisState::Idle | AxisState::Streaming | AxisState::Landing => true,
