@@ -270,8 +270,8 @@ pub struct Queued {
     /// in the profile's units ([`Profile::internal_of`]).
     pub(super) limits: Limits,
     pub(super) internal: (i64, i64, i64),
-    /// Its deceleration and the segment before it's, 2⁻³² steps/tick².
-    pub(super) dec: i64,
+    /// The deceleration of the segment before it, 2⁻³² steps/tick² (its
+    /// own is `internal.2`).
     dec_before: i64,
     /// The highest speed at its start, 2⁻³² steps/tick: its junction's
     /// ([`path_junction`]) and both segments' max speeds.
@@ -294,7 +294,6 @@ const NO_SEGMENT: Queued = Queued {
         dec: 1,
     },
     internal: (1, 1, 1),
-    dec: 1,
     dec_before: 1,
     cap: 0,
     entry: 0,
@@ -368,7 +367,6 @@ impl Queued {
             length: length as i64,
             limits: own,
             internal: Profile::internal_of(tick_us, own),
-            dec: acc_to_internal(own.dec.max(1), tick_us),
             dec_before: acc_to_internal(before.1.dec.max(1), tick_us),
             cap: if top == 0 {
                 0
@@ -403,10 +401,11 @@ impl Queued {
     // Bounded: length ≤ 2³² (· 2³³ < 2⁶⁶), braking distances below 2¹²⁷.
     #[allow(clippy::arithmetic_side_effects)]
     fn entry_speed(&self, exit: i64) -> i64 {
-        let room = (i128::from(self.length) << POS_FRAC) + braking_distance(exit, self.dec)
+        let dec = self.internal.2;
+        let room = (i128::from(self.length) << POS_FRAC) + braking_distance(exit, dec)
             - i128::from(self.dec_before);
-        let first = top_speed(room, self.dec);
-        let v = top_speed(room - 2 * i128::from(first), self.dec);
+        let first = top_speed(room, dec);
+        let v = top_speed(room - 2 * i128::from(first), dec);
         v.min(self.cap)
     }
 }

@@ -119,11 +119,9 @@ pub struct CoordRun {
     /// Chain indices of the members, in the line's order.
     members: [u8; MAX_AXES],
     n: usize,
-    /// Bit i: member i follows the line (every member, unless nothing
-    /// moves).
-    moving: u8,
     /// Bit i: member i has distance to go in the first segment (the line
-    /// waits until these stream; the others are led where they are).
+    /// waits until these stream; the others are led where they are). Every
+    /// member follows the line when any has ([`CoordRun::moving_members`]).
     first: u8,
     abort: Option<(u8, AbortReason)>,
     /// Ticks the line has run.
@@ -152,7 +150,6 @@ impl CoordRun {
             line: None,
             members: [0; MAX_AXES],
             n: 0,
-            moving: 0,
             first: 0,
             abort: None,
             ticks: 0,
@@ -279,10 +276,8 @@ impl CoordRun {
                 first |= 1 << i;
             }
         }
-        let mut moving = 0u8;
         if first != 0 {
-            for (i, (&k, &target)) in members.iter().zip(targets).enumerate() {
-                moving |= 1 << i;
+            for (&k, &target) in members.iter().zip(targets) {
                 if let Some(axis) = axes.get_mut(k) {
                     axis.follow(target);
                 }
@@ -293,7 +288,7 @@ impl CoordRun {
             dst.copy_from_slice(targets);
         }
         *self = CoordRun {
-            state: if moving == 0 {
+            state: if first == 0 {
                 CoordState::Done
             } else {
                 CoordState::Starting
@@ -301,7 +296,6 @@ impl CoordRun {
             line: Some(line),
             members: ids,
             n,
-            moving,
             first,
             abort: None,
             ticks: 0,
@@ -330,7 +324,6 @@ impl CoordRun {
         }
         let mut delta = [0i64; MAX_AXES];
         let mut limits = [ANY_PATH; MAX_AXES];
-        let mut tick_us = 1000;
         for (i, (&t, &k)) in targets.iter().zip(self.member_list()).enumerate() {
             let from = self.last.get(i).copied().unwrap_or(0);
             let d =
@@ -339,14 +332,16 @@ impl CoordRun {
             if let (Some(dd), Some(l), Some(a)) = (delta.get_mut(i), limits.get_mut(i), axis) {
                 *dd = d;
                 *l = a.streaming_limits();
-                tick_us = a.config().tick_us;
             }
         }
         let n = self.n;
-        let before = match (self.queue.last(), self.line.as_ref()) {
-            (Some(q), _) => (q.delta, q.limits),
-            (None, Some(l)) => (l.delta, l.path_limits()),
-            (None, None) => return Err(AppendError::NotRunning),
+        let Some(line) = self.line.as_ref() else {
+            return Err(AppendError::NotRunning);
+        };
+        let tick_us = line.path.tick_us();
+        let before = match self.queue.last() {
+            Some(q) => (q.delta, q.limits),
+            None => (line.delta, line.path_limits()),
         };
         let q = Queued::plan(
             tick_us,
@@ -379,11 +374,6 @@ impl CoordRun {
         } else {
             0
         }
-    }
-
-    /// Waypoints queued behind the segment running.
-    pub fn queued(&self) -> usize {
-        self.queue.len()
     }
 
     /// Waypoints the path has passed (without stopping on them).
@@ -433,11 +423,11 @@ impl CoordRun {
                 line.path.set_limits(q.limits);
                 line.path.soft_stop();
             } else {
-                line.aim_at(exit, q.dec);
+                line.aim_at(exit, q.internal.2);
                 line.path.set_limits(q.limits);
             }
             self.passed = self.passed.saturating_add(1);
-            for (i, k) in self.members_in(self.moving) {
+            for (i, k) in self.moving_members() {
                 let target = self.line.as_ref().and_then(|l| l.target(i));
                 if let (Some(a), Some(t)) = (axes.get_mut(k), target) {
                     a.retarget_lead(t);
@@ -487,9 +477,10 @@ impl CoordRun {
         }
     }
 
-    /// (line index, chain index) of the moving members.
+    /// (line index, chain index) of the members following the line: all
+    /// of them, unless nothing moves.
     fn moving_members(&self) -> impl Iterator<Item = (usize, usize)> + '_ {
-        self.members_in(self.moving)
+        self.members_in(if self.first == 0 { 0 } else { u8::MAX })
     }
 
     /// (line index, chain index) of the members whose bit `mask` has.
@@ -538,18 +529,16 @@ impl CoordRun {
     }
 
     fn lead_step(&mut self, axes: &mut [Axis]) {
-        // A member that left the line (or left its rest) stops the others
-        // at once.
-        let joined = self.moving;
+        // A member that left the line stops the others at once.
         let left = self
-            .members_in(joined)
+            .moving_members()
             .find(|&(_, k)| axes.get(k).is_none_or(|a| !a.is_following()));
         if let Some((_, k)) = left {
             self.halt(axes, k);
             return;
         }
         let mut asked = None;
-        for (_, k) in self.members_in(joined) {
+        for (_, k) in self.moving_members() {
             if let Some(a) = axes.get_mut(k) {
                 if a.take_stop_request() && asked.is_none() {
                     asked = u8::try_from(k).ok();
