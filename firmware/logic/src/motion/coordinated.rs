@@ -360,6 +360,7 @@ impl CoordRun {
         if let Some(dst) = self.last.get_mut(..n) {
             dst.copy_from_slice(targets);
         }
+        self.mark_through(axes);
         // The segment running now leaves at the new plan's speed.
         if self.state == CoordState::Running {
             self.aim();
@@ -432,6 +433,18 @@ impl CoordRun {
                 if let (Some(a), Some(t)) = (axes.get_mut(k), target) {
                     a.retarget_lead(t);
                 }
+            }
+            self.mark_through(axes);
+        }
+    }
+
+    /// Tell the members whether the path goes on beyond the segment
+    /// running (a waypoint queued) or stops at its end.
+    fn mark_through(&self, axes: &mut [Axis]) {
+        let through = self.queue.get(0).is_some();
+        for (_, k) in self.moving_members() {
+            if let Some(a) = axes.get_mut(k) {
+                a.lead_through(through);
             }
         }
     }

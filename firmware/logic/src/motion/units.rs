@@ -138,6 +138,36 @@ pub const fn correction_numerator(e: i64) -> i64 {
     e << 26
 }
 
+/// The largest read-back correction (chip SPEED units) for a chip whose
+/// DEC register holds `dec_reg`, at a feed-forward speed `ff` (SPEED): the
+/// speed its DEC takes off in half the correction period (4 ms), plus an
+/// eighth of `ff`.
+///
+/// A correction is a speed the chip must later undo at its own DEC. Near
+/// zero speed, where the correction alone sets the Run's direction, a chip
+/// with a slow DEC that was nudged one way while its profile rested or
+/// crept is so back at the profile's speed within 4 ms when the profile
+/// sets off the other way (unbounded, it ran on the wrong way for tens of
+/// ms and was then driven at twice its acceleration to catch up). At speed
+/// the eighth leaves room to follow a chip whose oscillator is up to 10 %
+/// off before its rate is learned (a cap of the first term alone held
+/// such a chip's error above the rate estimate's gate). A DEC register of
+/// `d` changes SPEED by `d · 2⁻⁴⁰ · (4·10⁶)² / 2⁻²⁸ / 4·10⁶ = d · 4·10⁶ /
+/// 2¹²` per second, so `d · 4000 µs / 1024` in 4 ms (`d` = 0, no DEC
+/// written yet: the eighth alone).
+pub const fn correction_cap(dec_reg: u32, ff: i64) -> i64 {
+    correction_cap_at_rest(dec_reg) as i64 + (ff.unsigned_abs() >> 3) as i64
+}
+
+/// [`correction_cap`] at a standstill (`ff` = 0), in the core's 32-bit
+/// arithmetic: DEC is a 12-bit register (`d · 4000 < 2²⁴`).
+pub const fn correction_cap_at_rest(dec_reg: u32) -> u32 {
+    ((dec_reg & 0xFFF) * CORRECTION_CAP_US) >> 10
+}
+
+/// The span [`correction_cap`] allows the chip's DEC to undo a correction in.
+pub const CORRECTION_CAP_US: u32 = 4_000;
+
 /// A following error of `e` physical microsteps corrected over `ticks` ticks,
 /// in chip SPEED units: `e / 2^S` full steps per `ticks · tick_us` µs.
 pub const fn correction_speed_reg(e: i64, tick_us: u32, step: StepSel, ticks: i64) -> i64 {
@@ -558,6 +588,25 @@ mod tests {
         // same speed in 1/128 logical steps = 1000/128 full steps/s
         assert_eq!(speed_reg_from_internal(1 << 32, 1000, 7), 524);
         assert_eq!(speed_reg_from_internal(-(1 << 32), 1000, 0), -67_108);
+    }
+
+    #[test]
+    fn correction_cap_is_the_speed_the_chips_dec_takes_off_in_four_ms_and_an_eighth_of_the_speed() {
+        // DEC 42 (the slow-deceleration case): 42 · 2⁻⁴⁰ steps per 250 ns²
+        // = 611.2 full steps/s², 2.445 full steps/s in 4 ms = 164.1 SPEED.
+        assert_eq!(correction_cap(42, 0), 164);
+        // The same through the chip's units: DEC in steps/s² (Q16) times
+        // 4 ms, as a Run speed.
+        for reg in [1u32, 42, 0x8A, 1884, 0xFFE] {
+            let per_s2 = crate::powerstep::units::acc_to_steps_per_s2(reg);
+            let v_q16 = (u64::from(per_s2) * 4 / 1000) as u32;
+            let spd = i64::from(crate::powerstep::units::speed_from_steps_per_s(v_q16));
+            assert!((correction_cap(reg, 0) - spd).abs() <= 1, "DEC {reg}");
+        }
+        assert_eq!(correction_cap(0, 0), 0);
+        // At speed, an eighth of it more (either direction).
+        assert_eq!(correction_cap(42, 8_000), 1_164);
+        assert_eq!(correction_cap(42, -8_000), 1_164);
     }
 
     #[test]

@@ -13,9 +13,9 @@ pub const SYSCLK_HZ: u32 = 168_000_000;
 /// decode, absorb; every axis starting a move at once), 1 kHz build
 /// (`cargo tick-cpu`: the largest of the cruise tick, the moves workload's
 /// mean tick and its worst tick).
-pub const TICK_CYCLES_8_AXES_1KHZ: u32 = 15_749;
+pub const TICK_CYCLES_8_AXES_1KHZ: u32 = 15_914;
 /// The same, 5 kHz build (`STEPBRIDGE_TICK_HZ=5000 cargo tick-cpu`).
-pub const TICK_CYCLES_8_AXES_5KHZ: u32 = 15_658;
+pub const TICK_CYCLES_8_AXES_5KHZ: u32 = 15_823;
 /// The chain driver's cycles in the control tick per streaming batch of 8
 /// chips: start and hand-over (`cargo chain-cpu`).
 pub const CHAIN_DRIVER_TICK_CYCLES: u32 = 676;

@@ -328,8 +328,7 @@ impl Axis {
         let l = self.streaming_limits();
         self.profile.prepare_limits(l);
         if self.limits.backstop.0 != l.max_speed || self.limits.backstop.1 == 0 {
-            let reg = units::backstop_reg(l.max_speed, self.cfg.logical_shift);
-            self.limits.backstop = (l.max_speed, reg);
+            self.set_backstop(l.max_speed);
         }
         let key = (l.dec, self.cfg.logical_shift, self.cfg.step);
         let known = self.memo.stop_cap == Some(key)

@@ -15,6 +15,10 @@ pub(super) struct LeadMark {
     at: u64,
     /// A soft stop asked of this member: the group stops along the line.
     stop_asked: bool,
+    /// More of the path is queued behind `target`: the line runs through
+    /// it rather than stopping on it (so the Run is not capped to stop
+    /// there, [`Axis::cap_to_stop`]).
+    through: bool,
 }
 
 impl Axis {
@@ -47,7 +51,21 @@ impl Axis {
             target,
             at: self.tick,
             stop_asked: false,
+            through: false,
         });
+    }
+
+    /// Whether the group's path goes on beyond the member's target (a
+    /// waypoint is queued behind it) or ends there.
+    pub fn lead_through(&mut self, through: bool) {
+        if let Some(m) = self.lead.as_mut() {
+            m.through = through;
+        }
+    }
+
+    /// The group's line runs through the target the profile moves to.
+    pub(super) fn led_through(&self) -> bool {
+        self.lead.is_some_and(|m| m.through)
     }
 
     /// The group's path went on to its next waypoint: the member's target

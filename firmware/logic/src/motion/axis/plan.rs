@@ -570,7 +570,7 @@ impl Axis {
         let now = before.max(self.profile.velocity_internal().unsigned_abs());
         let max_speed = self.profile.limits().max_speed;
         if self.limits.backstop.0 != max_speed || self.limits.backstop.1 == 0 {
-            self.limits.backstop = (max_speed, units::backstop_reg(max_speed, shift));
+            self.set_backstop(max_speed);
         }
         let need = if now > vmax {
             let v = crate::motion::profile::speed_from_internal(now as i64, self.cfg.tick_us);
@@ -591,6 +591,11 @@ impl Axis {
         if emit(Command::Run(dir, mag)) {
             self.rate.running = signed_speed(dir, mag);
         }
+    }
+
+    /// The MAX_SPEED backstop for profile max speed `v`.
+    pub(super) fn set_backstop(&mut self, v: u32) {
+        self.limits.backstop = (v, units::backstop_reg(v, self.cfg.logical_shift));
     }
 
     /// The profile's tick of a streaming axis; the speed before it.
@@ -626,6 +631,15 @@ impl Axis {
         let corr = self
             .corr_div
             .div_signed(units::correction_numerator(self.rb.error));
+        // Bounded (units::correction_cap); the common case, within the
+        // standstill bound, is one 32-bit product and a compare.
+        let corr =
+            if corr.unsigned_abs() <= u64::from(units::correction_cap_at_rest(self.limits.dec)) {
+                corr
+            } else {
+                let cap = units::correction_cap(self.limits.dec, ff);
+                corr.clamp(-cap, cap)
+            };
         let spd = self.cap_to_stop(ff, ff + corr);
         let dir = if spd < 0 || (spd == 0 && ff < 0) {
             Direction::Reverse
@@ -784,7 +798,9 @@ impl Axis {
     /// which it ran on at its last speed) brakes earlier instead of being
     /// carried past the target by the correction. Only while the profile
     /// itself can stop on the target in that direction: one that cannot
-    /// (a retarget inside the braking distance) passes it on purpose.
+    /// (a retarget inside the braking distance) passes it on purpose, and
+    /// so does a member of a path whose line runs through the target to
+    /// the next waypoint.
     pub(super) fn cap_to_stop(&mut self, ff: i64, spd: i64) -> i64 {
         let Mode::Position(t) = self.profile.mode() else {
             return spd;
@@ -809,7 +825,7 @@ impl Axis {
             )
         };
         let left = ahead.saturating_add(behind);
-        if ahead <= 0 || left > self.stop_cap.room() {
+        if ahead <= 0 || left > self.stop_cap.room() || self.led_through() {
             return spd;
         }
         let cap2 = self.stop_cap.speed2(left);
