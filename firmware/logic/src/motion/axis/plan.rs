@@ -638,7 +638,7 @@ impl Axis {
                 corr
             } else {
                 let cap = units::correction_cap(self.limits.dec, ff);
-                corr.clamp(-cap, cap)
+                corr.max(-cap).min(cap)
             };
         let spd = self.cap_to_stop(ff, ff + corr);
         let dir = if spd < 0 || (spd == 0 && ff < 0) {
