@@ -836,7 +836,20 @@ fn run_path(
     let mut meter = Meter::new(&mut rig, members);
     let mut fed = 0usize;
     let end = points.last().unwrap().clone();
-    let before_end = points[points.len() - 2].clone();
+    // The last segment's direction per axis, in logical steps (one finer
+    // than a microstep has a direction the physical points do not show).
+    let mut logical: Vec<Vec<i64>> = vec![members.iter().map(|m| m.target).collect()];
+    for w in waypoints {
+        if logical.last() != Some(w) {
+            logical.push(w.clone());
+        }
+    }
+    let last_dir: Vec<i64> = match logical.len() {
+        0 | 1 => vec![0; n],
+        l => (0..n)
+            .map(|k| (logical[l - 1][k] - logical[l - 2][k]).signum())
+            .collect(),
+    };
     for t in 0..cap_ticks {
         fed += feed(&mut rig, &waypoints[fed..]);
         let coord = rig.group.coord();
@@ -890,8 +903,7 @@ fn run_path(
         if fed == waypoints.len() && j == points.len() - 2 {
             // On the last segment: past its end, per axis.
             for k in 0..n {
-                let d = end[k] - before_end[k];
-                let beyond = (commanded[k] - end[k]) * d.signum();
+                let beyond = (commanded[k] - end[k]) * last_dir[k];
                 ps.past_end = ps.past_end.max(beyond);
             }
         }
